@@ -1,0 +1,268 @@
+"""One LTV-MPC step: reference -> linearization -> QP values -> solve -> Plan, with fallbacks.
+
+Linearization reference z^r = (x^r_{0..N}, u^r_{0..N-1}), first match wins:
+
+1. given by the caller (SRMPC passes its policy's rollout);
+2. the previous plan shifted by one step: u^r = (u_1, ..., u_{N-1}, u_{N-1}), x^r the rollout of
+   u^r from the measured state (dynamically consistent with the exact model);
+3. at the first step: constant-velocity lane following, x^r_k = (x + v k dt, y_lane, 0, v) with
+   y_lane the closest lane centre, u^r = 0.
+
+x^r_0 is always replaced by the measured state.
+
+Fallback chain when the QP is not solved (never an exception out of the step):
+``SOLVED`` -> ``SHIFTED_PREVIOUS`` (the last solved plan, shifted by the steps since it was
+solved, while it lasts) -> ``EMERGENCY_BRAKE`` (full braking, steering holding the closest lane).
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from srmpc.mpc.ocp import LANE_CENTRES_M, OcpConfig, lane_keeping_tracking_reference
+from srmpc.mpc.prediction import TrafficPredictor, predict_constant_velocity
+from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.solvers import DEFAULT_SOLVER, QpSolution, QpSolver, make_solver
+from srmpc.mpc.vehicle_model import INPUT_DIM, STATE_DIM
+
+LANE_HOLD_LATERAL_GAIN_1_S = 0.6
+"""Emergency lane hold: heading command per lateral error and speed, psi_cmd = -k e / v [1/s]."""
+LANE_HOLD_HEADING_GAIN = 1.0
+"""Emergency lane hold: steering per heading error [rad/rad]."""
+INPUT_BOUND_TOLERANCE = 1e-4
+"""How far a solver's first input may exceed its box before the plan is rejected [rad, m/s^2]."""
+
+
+class StepOutcome(enum.Enum):
+    """Which source produced the applied input."""
+
+    SOLVED = "solved"
+    SHIFTED_PREVIOUS = "shifted_previous"
+    EMERGENCY_BRAKE = "emergency_brake"
+
+
+class ReferenceSource(enum.Enum):
+    """Where the linearization reference came from."""
+
+    GIVEN = "given"
+    SHIFTED_PREVIOUS = "shifted_previous"
+    LANE_FOLLOWING = "lane_following"
+
+
+@dataclass
+class Plan:
+    """A planned trajectory and how it was obtained.
+
+    Attributes:
+        states: (N + 1, 4) x_0..x_N (x_0 the measured state).
+        inputs: (N, 2) u_0..u_{N-1}; u_0 is applied.
+        outcome: which link of the fallback chain produced it.
+        reference_source: origin of the linearization reference.
+        solver_status: solver status text ("" if not solved by the QP).
+        iterations: solver iterations, where reported.
+        collision_slacks, safety_slacks: (V,) slack values (zeros for fallbacks).
+        solve_time_s: time in the QP solver [s]; step_time_s: whole step [s].
+    """
+
+    states: np.ndarray
+    inputs: np.ndarray
+    outcome: StepOutcome
+    reference_source: ReferenceSource
+    solver_status: str = ""
+    iterations: int | None = None
+    collision_slacks: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    safety_slacks: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    solve_time_s: float = 0.0
+    step_time_s: float = 0.0
+
+    @property
+    def first_input(self) -> np.ndarray:
+        return self.inputs[0]
+
+
+def closest_lane_centre(lateral_position_m: float,
+                        lane_centres_m: tuple[float, ...] = LANE_CENTRES_M) -> float:
+    centres = np.asarray(lane_centres_m)
+    return float(centres[np.argmin(np.abs(centres - lateral_position_m))])
+
+
+class LtvMpcPlanner:
+    """LTV-MPC (paper Sec. "MPC for Automated Driving") with a selectable QP solver.
+
+    Args:
+        config: OCP sizes, weights, bounds and geometry.
+        solver: a solver name (see ``solvers.available_solvers``) or a solver object.
+        predictor: prediction of the other vehicles (constant velocity by default).
+        lane_centres_m: lane centre y positions [m] for the lane-following reference and the
+            emergency lane hold.
+        solver_settings: keyword settings for a solver given by name.
+    """
+
+    def __init__(
+        self,
+        config: OcpConfig | None = None,
+        solver: str | QpSolver = DEFAULT_SOLVER,
+        predictor: TrafficPredictor = predict_constant_velocity,
+        lane_centres_m: tuple[float, ...] = LANE_CENTRES_M,
+        solver_settings: dict | None = None,
+    ) -> None:
+        self.config = config or OcpConfig()
+        self.qp = LtvMpcQp(self.config)
+        self.model = self.qp.model
+        self.solver = make_solver(solver, **(solver_settings or {})) if isinstance(
+            solver, str) else solver
+        self.predictor = predictor
+        self.lane_centres_m = tuple(lane_centres_m)
+        horizon = self.config.horizon
+        self._input_lower = np.array([self.config.steering_bounds_rad[0],
+                                      self.config.acceleration_bounds_m_s2[0]])
+        self._input_upper = np.array([self.config.steering_bounds_rad[1],
+                                      self.config.acceleration_bounds_m_s2[1]])
+        self._default_tracking = lane_keeping_tracking_reference(horizon)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous plan and warm starts (new episode)."""
+        self.last_solved_plan: Plan | None = None
+        self.steps_since_solved = 0
+        self.solver.reset()
+
+    # ------------------------------------------------------------------ references
+    def lane_following_reference(self, ego_state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Constant-velocity lane following from the measured state (module doc, item 3)."""
+        horizon, dt = self.config.horizon, self.config.control_period_s
+        states = np.empty((horizon + 1, STATE_DIM))
+        speed = float(ego_state[3])
+        states[:, 0] = ego_state[0] + speed * dt * np.arange(horizon + 1)
+        states[:, 1] = closest_lane_centre(float(ego_state[1]), self.lane_centres_m)
+        states[:, 2] = 0.0
+        states[:, 3] = speed
+        states[0] = ego_state
+        return states, np.zeros((horizon, INPUT_DIM))
+
+    def shifted_inputs(self, plan: Plan, shift: int) -> np.ndarray:
+        """(u_shift, ..., u_{N-1}, u_{N-1}, ...): the plan's inputs advanced by ``shift``."""
+        inputs = plan.inputs
+        index = np.minimum(np.arange(inputs.shape[0]) + shift, inputs.shape[0] - 1)
+        return inputs[index].copy()
+
+    def emergency_brake(self, ego_state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Full braking while steering back to the closest lane centre.
+
+        Steering law per stage: delta = clip(-k_psi (psi - psi_cmd)), psi_cmd = -k_y e / max(v, 1)
+        with e = y - y_lane; acceleration = the lower acceleration bound, but not below what
+        stops exactly at v = 0 within one step.
+        """
+        horizon, dt = self.config.horizon, self.config.control_period_s
+        lane = closest_lane_centre(float(ego_state[1]), self.lane_centres_m)
+        states = np.empty((horizon + 1, STATE_DIM))
+        inputs = np.empty((horizon, INPUT_DIM))
+        states[0] = ego_state
+        for k in range(horizon):
+            px, py, psi, speed = states[k]
+            heading_command = -LANE_HOLD_LATERAL_GAIN_1_S * (py - lane) / max(speed, 1.0)
+            heading_command = float(np.clip(heading_command, -0.3, 0.3))
+            steering = -LANE_HOLD_HEADING_GAIN * (psi - heading_command)
+            braking = max(self._input_lower[1], -max(speed, 0.0) / dt)
+            inputs[k] = np.clip([steering, braking], self._input_lower, self._input_upper)
+            states[k + 1] = self.model.step(states[k], inputs[k])
+        return states, inputs
+
+    # ------------------------------------------------------------------ step
+    def plan(
+        self,
+        ego_state: np.ndarray,
+        others: np.ndarray,
+        last_input: np.ndarray,
+        tracking_reference: np.ndarray | None = None,
+        linearization_reference: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> Plan:
+        """Plan from the measured ego state.
+
+        Args:
+            ego_state: (4,) [x, y, heading, speed].
+            others: (V_obs, 4) observed vehicles [x, y, heading, speed], V_obs <= max_vehicles.
+            last_input: (2,) previously applied (delta, a).
+            tracking_reference: (N + 1, 4) x^ref; default right-lane centre at 25 m/s.
+            linearization_reference: (states (N + 1, 4), inputs (N, 2)) to linearize about,
+                e.g. SRMPC's policy rollout; default: shifted previous plan / lane following.
+        """
+        start = time.perf_counter()
+        config = self.config
+        horizon = config.horizon
+        ego_state = np.asarray(ego_state, dtype=np.float64).reshape(STATE_DIM)
+        others = np.asarray(others, dtype=np.float64).reshape(-1, STATE_DIM)
+        last_input = np.asarray(last_input, dtype=np.float64).reshape(INPUT_DIM)
+        if tracking_reference is None:
+            tracking_reference = self._default_tracking
+        tracking_reference = np.asarray(tracking_reference, dtype=np.float64)
+        if tracking_reference.shape != (horizon + 1, STATE_DIM):
+            raise ValueError(f"tracking_reference must have shape {(horizon + 1, STATE_DIM)}")
+
+        if linearization_reference is not None:
+            ref_states = np.array(linearization_reference[0], dtype=np.float64)
+            ref_inputs = np.array(linearization_reference[1], dtype=np.float64)
+            if ref_states.shape != (horizon + 1, STATE_DIM) or ref_inputs.shape != (
+                    horizon, INPUT_DIM):
+                raise ValueError("linearization_reference must be ((N + 1, 4), (N, 2)) arrays")
+            source = ReferenceSource.GIVEN
+            ref_states[0] = ego_state
+        elif self.last_solved_plan is not None and self.steps_since_solved < horizon:
+            ref_inputs = self.shifted_inputs(self.last_solved_plan, 1 + self.steps_since_solved)
+            ref_states = self.model.rollout(ego_state, ref_inputs)
+            source = ReferenceSource.SHIFTED_PREVIOUS
+        else:
+            ref_states, ref_inputs = self.lane_following_reference(ego_state)
+            source = ReferenceSource.LANE_FOLLOWING
+
+        predicted = np.asarray(self.predictor(others, horizon, config.control_period_s))
+        solution = self._solve(ego_state, ref_states, ref_inputs, tracking_reference,
+                               last_input, predicted)
+        plan = self._plan_from_solution(solution, source)
+        if plan is not None:
+            self.last_solved_plan = plan
+            self.steps_since_solved = 0
+        else:
+            plan = self._fallback(ego_state, source, solution.status)
+        plan.solve_time_s = solution.solve_time_s
+        plan.step_time_s = time.perf_counter() - start
+        return plan
+
+    def _solve(self, ego_state, ref_states, ref_inputs, tracking_reference, last_input,
+               predicted) -> QpSolution:
+        self.qp.update(ego_state, ref_states, ref_inputs, tracking_reference, last_input,
+                       predicted)
+        warm_start = self.qp.pack(ref_states, ref_inputs)
+        solve_start = time.perf_counter()
+        solution = self.solver.solve(self.qp, warm_start)
+        solution.solve_time_s = time.perf_counter() - solve_start
+        return solution
+
+    def _plan_from_solution(self, solution: QpSolution, source: ReferenceSource) -> Plan | None:
+        if not solution.solved or solution.z is None:
+            return None
+        states, inputs, collision_slacks, safety_slacks = self.qp.split_solution(solution.z)
+        first = inputs[0]
+        if not (np.all(np.isfinite(solution.z))
+                and np.all(first >= self._input_lower - INPUT_BOUND_TOLERANCE)
+                and np.all(first <= self._input_upper + INPUT_BOUND_TOLERANCE)):
+            return None
+        inputs = np.clip(inputs, self._input_lower, self._input_upper)
+        return Plan(states, inputs, StepOutcome.SOLVED, source, solution.status,
+                    solution.iterations, collision_slacks, safety_slacks)
+
+    def _fallback(self, ego_state: np.ndarray, source: ReferenceSource, status: str) -> Plan:
+        self.steps_since_solved += 1
+        n_slots = self.config.max_vehicles
+        if self.last_solved_plan is not None and self.steps_since_solved < self.config.horizon:
+            inputs = self.shifted_inputs(self.last_solved_plan, self.steps_since_solved)
+            states = self.model.rollout(ego_state, inputs)
+            return Plan(states, inputs, StepOutcome.SHIFTED_PREVIOUS, source, status,
+                        collision_slacks=np.zeros(n_slots), safety_slacks=np.zeros(n_slots))
+        states, inputs = self.emergency_brake(ego_state)
+        return Plan(states, inputs, StepOutcome.EMERGENCY_BRAKE, source, status,
+                    collision_slacks=np.zeros(n_slots), safety_slacks=np.zeros(n_slots))

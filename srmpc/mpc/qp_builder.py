@@ -1,0 +1,406 @@
+"""The LTV-MPC QP in a fixed sparsity pattern, assembled once; only values change per step.
+
+Decision vector, stage-interleaved (stage k = 0..N)::
+
+    z = [x_0, u_0, | x_1, u_1, sigma_1, | ... | x_N, sigma_N, | s]
+
+with x_k (4), u_k (2, k < N), sigma_k (V safety-region slacks, k >= 1) and, per other vehicle j,
+one collision slack s_j that relaxes its collision constraint over the whole horizon (the paper:
+slack "relaxing the whole constraint"); s_j is then the largest violation over the horizon: an
+intrusion that cannot be avoided now may persist but is penalized, never made worse for free.
+
+QP (paper eq. qp), kept in two equivalent forms that share the same value arrays::
+
+    split form:    min 1/2 z^T P z + q^T z   s.t.  E z = e,  G z >= h,  z_lo <= z <= z_hi
+    general form:  min 1/2 z^T P z + q^T z   s.t.  l <= A z <= u,  A = [E; G; I_box]
+
+- E z = e: x_0 = x_hat and x_{k+1} - A_k x_k - B_k u_k = c_k (linearized dynamics, eq. OCP_b/c).
+- G z >= h: per stage k >= 1 and vehicle j one row, the linearized collision constraint of the
+  critical ego circle merged with its safety region: n^T J_p x_k + s_j + sigma_kj >= h_kj
+  (see ``collision.py``).
+- Box: y_k and v_k (k >= 1), u_k, s >= 0, 0 <= sigma_kj <= h'(n) - 1 (changes each step);
+  x, psi and x_0 are free (+-inf).
+
+P (upper triangle, constant): 2 Q on x_k (k >= 1), 2 R + 2 S (+ 2 S if k < N - 1) on u_k,
+-2 S between u_{k-1} and u_k, 2 w_2 on the slacks.  q = -2 Q x^ref_k on x_k, -2 S u_hat on u_0,
+w_1 on the slacks.
+
+Every entry that can ever be nonzero is in the pattern, explicit zeros included: matrices are
+built from index lists with placeholder values, never from sparse arithmetic that would drop
+zeros, so solvers can be updated in place (OSQP ``update(Ax=...)``, PIQP ``update``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from srmpc.mpc.collision import linearize_collision_constraints
+from srmpc.mpc.ocp import OcpConfig
+from srmpc.mpc.vehicle_model import INPUT_DIM, STATE_DIM, KinematicBicycle
+
+_LATERAL = 1
+_SPEED = 3
+
+
+@dataclass(frozen=True)
+class VariableLayout:
+    """Positions of the blocks of z (see module doc)."""
+
+    horizon: int
+    n_slots: int
+    state_start: np.ndarray  # (N + 1,)
+    input_start: np.ndarray  # (N,)
+    safety_slack_start: np.ndarray  # (N,), sigma of stage k + 1
+    collision_slack_start: int
+    n_variables: int
+
+    @classmethod
+    def build(cls, horizon: int, n_slots: int) -> VariableLayout:
+        state_start = np.empty(horizon + 1, dtype=np.int64)
+        input_start = np.empty(horizon, dtype=np.int64)
+        safety_slack_start = np.empty(horizon, dtype=np.int64)
+        index = 0
+        for k in range(horizon + 1):
+            state_start[k] = index
+            index += STATE_DIM
+            if k < horizon:
+                input_start[k] = index
+                index += INPUT_DIM
+            if k >= 1:
+                safety_slack_start[k - 1] = index
+                index += n_slots
+        return cls(horizon, n_slots, state_start, input_start, safety_slack_start, index,
+                   index + n_slots)
+
+    def state_indices(self) -> np.ndarray:
+        """(N + 1, 4) indices of x_k."""
+        return self.state_start[:, None] + np.arange(STATE_DIM)[None, :]
+
+    def input_indices(self) -> np.ndarray:
+        """(N, 2) indices of u_k."""
+        return self.input_start[:, None] + np.arange(INPUT_DIM)[None, :]
+
+    def collision_slack_indices(self) -> np.ndarray:
+        """(V,) indices of s_j."""
+        return self.collision_slack_start + np.arange(self.n_slots)
+
+    def safety_slack_indices(self) -> np.ndarray:
+        """(N, V) indices of sigma_{k+1, j}."""
+        return self.safety_slack_start[:, None] + np.arange(self.n_slots)[None, :]
+
+
+class _PatternBuilder:
+    """Collects (row, col) entries; ``add`` returns their entry numbers in insertion order."""
+
+    def __init__(self) -> None:
+        self.rows: list[np.ndarray] = []
+        self.cols: list[np.ndarray] = []
+        self.count = 0
+
+    def add(self, rows, cols) -> np.ndarray:
+        rows, cols = np.broadcast_arrays(np.asarray(rows, dtype=np.int64),
+                                         np.asarray(cols, dtype=np.int64))
+        entries = self.count + np.arange(rows.size).reshape(rows.shape)
+        self.rows.append(rows.ravel())
+        self.cols.append(cols.ravel())
+        self.count += rows.size
+        return entries
+
+    def finalize(self, shape: tuple[int, int]) -> tuple[sp.csc_matrix, np.ndarray]:
+        """CSC matrix with zero data and, per entry number, its position in ``data``."""
+        rows = np.concatenate(self.rows) if self.rows else np.empty(0, dtype=np.int64)
+        cols = np.concatenate(self.cols) if self.cols else np.empty(0, dtype=np.int64)
+        return csc_with_positions(rows, cols, shape)
+
+
+def csc_with_positions(
+    rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
+) -> tuple[sp.csc_matrix, np.ndarray]:
+    """Build a CSC pattern from (row, col) pairs; return it and each pair's data position.
+
+    Placeholder values 1..nnz keep every entry (explicit zeros are never dropped); duplicates
+    are rejected.
+    """
+    n_entries = rows.size
+    order = np.lexsort((rows, cols))
+    sorted_rows, sorted_cols = rows[order], cols[order]
+    if n_entries > 1:
+        same = (np.diff(sorted_rows) == 0) & (np.diff(sorted_cols) == 0)
+        if np.any(same):
+            raise ValueError("duplicate entries in sparsity pattern")
+    indptr = np.zeros(shape[1] + 1, dtype=np.int32)
+    np.add.at(indptr, sorted_cols + 1, 1)
+    indptr = np.cumsum(indptr).astype(np.int32)
+    matrix = sp.csc_matrix(
+        (np.zeros(n_entries), sorted_rows.astype(np.int32), indptr), shape=shape
+    )
+    positions = np.empty(n_entries, dtype=np.int64)
+    positions[order] = np.arange(n_entries)
+    return matrix, positions
+
+
+class LtvMpcQp:
+    """Holds the QP's fixed pattern and overwrites its values each step (see module doc).
+
+    Attributes (overwritten in place by ``update``):
+        cost_matrix (P, CSC upper triangle, constant), cost_vector (q),
+        equality_matrix (E), equality_rhs (e), inequality_matrix (G), inequality_lower (h),
+        variable_lower, variable_upper (constant),
+        general_matrix (A), general_lower (l), general_upper (u).
+    """
+
+    def __init__(self, config: OcpConfig, model: KinematicBicycle | None = None) -> None:
+        self.config = config
+        self.model = model or KinematicBicycle(config.bicycle)
+        horizon, n_slots = config.horizon, config.max_vehicles
+        geometry = config.geometry
+        self.circle_offsets = np.asarray(geometry.circle_offsets_m, dtype=np.float64)
+        self.collision_semi_axes = np.asarray(geometry.collision_semi_axes_m)
+        self.safety_semi_axes = np.asarray(geometry.safety_semi_axes_m)
+        layout = VariableLayout.build(horizon, n_slots)
+        self.layout = layout
+        n = layout.n_variables
+        state_idx = layout.state_indices()
+        input_idx = layout.input_indices()
+        col_slack_idx = layout.collision_slack_indices()
+        safe_slack_idx = layout.safety_slack_indices()
+        self._state_idx = state_idx
+        self._input_idx = input_idx
+
+        # --- equality rows: x_0 = x_hat; x_{k+1} - A_k x_k - B_k u_k = c_k
+        eq = _PatternBuilder()
+        initial_entries = eq.add(np.arange(STATE_DIM), state_idx[0])
+        rows_k = STATE_DIM + STATE_DIM * np.arange(horizon)[:, None] + np.arange(STATE_DIM)
+        next_entries = eq.add(rows_k, state_idx[1:])
+        a_entries = eq.add(rows_k[:, :, None], state_idx[:-1, None, :])
+        b_entries = eq.add(rows_k[:, :, None], input_idx[:, None, :])
+        self.n_equalities = STATE_DIM * (horizon + 1)
+        self.equality_matrix, eq_pos = eq.finalize((self.n_equalities, n))
+        self.equality_matrix.data[eq_pos[initial_entries]] = 1.0
+        self.equality_matrix.data[eq_pos[next_entries]] = 1.0
+        self._a_pos = eq_pos[a_entries]  # (N, 4, 4)
+        self._b_pos = eq_pos[b_entries]  # (N, 4, 2)
+        self.equality_rhs = np.zeros(self.n_equalities)
+
+        # --- inequality rows: one per stage k >= 1 and vehicle slot j
+        rows = np.arange(horizon)[:, None] * n_slots + np.arange(n_slots)[None, :]  # (N, V)
+        ineq = _PatternBuilder()
+        coef_entries = ineq.add(rows[..., None], state_idx[1:, None, :3])  # (N, V, 3)
+        col_slack_entries = ineq.add(rows, col_slack_idx[None, :])
+        safe_slack_entries = ineq.add(rows, safe_slack_idx)
+        self.n_inequalities = horizon * n_slots
+        self.inequality_matrix, ineq_pos = ineq.finalize((self.n_inequalities, n))
+        self.inequality_matrix.data[ineq_pos[col_slack_entries]] = 1.0
+        self.inequality_matrix.data[ineq_pos[safe_slack_entries]] = 1.0
+        self._coef_pos = ineq_pos[coef_entries]
+        self.inequality_lower = np.zeros(self.n_inequalities)
+        self._safe_slack_idx = safe_slack_idx
+
+        # --- variable boxes
+        self.variable_lower = np.full(n, -np.inf)
+        self.variable_upper = np.full(n, np.inf)
+        self.variable_lower[state_idx[1:, _LATERAL]] = config.lateral_bounds_m[0]
+        self.variable_upper[state_idx[1:, _LATERAL]] = config.lateral_bounds_m[1]
+        self.variable_lower[state_idx[1:, _SPEED]] = config.speed_bounds_m_s[0]
+        self.variable_upper[state_idx[1:, _SPEED]] = config.speed_bounds_m_s[1]
+        self.variable_lower[input_idx[:, 0]] = config.steering_bounds_rad[0]
+        self.variable_upper[input_idx[:, 0]] = config.steering_bounds_rad[1]
+        self.variable_lower[input_idx[:, 1]] = config.acceleration_bounds_m_s2[0]
+        self.variable_upper[input_idx[:, 1]] = config.acceleration_bounds_m_s2[1]
+        self.variable_lower[col_slack_idx] = 0.0
+        self.variable_lower[safe_slack_idx] = 0.0
+        self.variable_upper[safe_slack_idx] = 0.0  # set per step to h'(n) - 1
+
+        # --- cost
+        self._build_cost(col_slack_idx, safe_slack_idx)
+
+        # --- general form A = [E; G; I_box]
+        boxed = np.flatnonzero(np.isfinite(self.variable_lower) | np.isfinite(self.variable_upper))
+        self.boxed_variables = boxed
+        eq_coo = self.equality_matrix.tocoo()
+        ineq_coo = self.inequality_matrix.tocoo()
+        # tocoo of a canonical CSC enumerates data in storage order
+        rows = np.concatenate([eq_coo.row, ineq_coo.row + self.n_equalities,
+                               self.n_equalities + self.n_inequalities + np.arange(boxed.size)])
+        cols = np.concatenate([eq_coo.col, ineq_coo.col, boxed])
+        n_rows = self.n_equalities + self.n_inequalities + boxed.size
+        self.general_matrix, gen_pos = csc_with_positions(rows, cols, (n_rows, n))
+        n_eq_nnz = self.equality_matrix.nnz
+        n_ineq_nnz = self.inequality_matrix.nnz
+        self._gen_from_eq = gen_pos[:n_eq_nnz]
+        self._gen_from_ineq = gen_pos[n_eq_nnz:n_eq_nnz + n_ineq_nnz]
+        self.general_matrix.data[gen_pos[n_eq_nnz + n_ineq_nnz:]] = 1.0
+        self.general_lower = np.empty(n_rows)
+        self.general_upper = np.empty(n_rows)
+        box_rows = slice(self.n_equalities + self.n_inequalities, n_rows)
+        self.general_lower[box_rows] = self.variable_lower[boxed]
+        self.general_upper[box_rows] = self.variable_upper[boxed]
+        self.general_upper[self.n_equalities:self.n_equalities + self.n_inequalities] = np.inf
+        box_row_of_variable = np.full(n, -1)
+        box_row_of_variable[boxed] = self.n_equalities + self.n_inequalities + np.arange(
+            boxed.size)
+        self._safe_slack_box_rows = box_row_of_variable[safe_slack_idx]
+
+        # --- one-stage shift maps (warm starts): value of index i after the shift is taken from
+        # shift[i]; the last stage repeats itself
+        stage_of = np.minimum(np.arange(horizon + 1) + 1, horizon)
+        input_stage_of = np.minimum(np.arange(horizon) + 1, horizon - 1)
+        sigma_stage_of = np.minimum(np.arange(horizon) + 1, horizon - 1)
+        variable_shift = np.arange(n)
+        variable_shift[state_idx] = state_idx[stage_of]
+        variable_shift[input_idx] = input_idx[input_stage_of]
+        variable_shift[safe_slack_idx] = safe_slack_idx[sigma_stage_of]
+        self.variable_shift = variable_shift
+        eq_blocks = np.arange(self.n_equalities).reshape(horizon + 1, STATE_DIM)
+        ineq_blocks = np.arange(self.n_inequalities).reshape(horizon, n_slots)
+        row_shift = np.arange(n_rows)
+        row_shift[eq_blocks] = eq_blocks[stage_of]
+        row_shift[self.n_equalities + ineq_blocks] = self.n_equalities + ineq_blocks[
+            sigma_stage_of]
+        row_shift[box_rows] = box_row_of_variable[variable_shift[boxed]]
+        self.general_row_shift = row_shift
+
+        # --- work buffers
+        self._next_states = np.empty((horizon, STATE_DIM))
+        self._state_matrices = np.empty((horizon, STATE_DIM, STATE_DIM))
+        self._input_matrices = np.empty((horizon, STATE_DIM, INPUT_DIM))
+        self._affine_offsets = np.empty((horizon, STATE_DIM))
+        self._coefficients = np.empty((horizon, n_slots, 3))
+        self._row_lower = np.empty((horizon, n_slots))
+        self._safety_slack_upper = np.empty((horizon, n_slots))
+        self.critical_circle = np.zeros((horizon, n_slots), dtype=np.int64)
+        self._empty_prediction = np.zeros((horizon + 1, 1, 4))
+
+    def _build_cost(self, col_slack_idx: np.ndarray, safe_slack_idx: np.ndarray) -> None:
+        config = self.config
+        weights = config.weights
+        horizon = config.horizon
+        n = self.layout.n_variables
+        state_weight = np.asarray(weights.state, dtype=np.float64)
+        input_weight = np.asarray(weights.input, dtype=np.float64)
+        rate_weight = np.asarray(weights.input_rate, dtype=np.float64)
+        rows: list[np.ndarray] = []
+        cols: list[np.ndarray] = []
+        values: list[np.ndarray] = []
+
+        def add(r, c, v):
+            r, c, v = np.broadcast_arrays(np.asarray(r), np.asarray(c), np.asarray(v, float))
+            rows.append(r.ravel())
+            cols.append(c.ravel())
+            values.append(v.ravel())
+
+        states = self._state_idx[1:]
+        add(states, states, np.broadcast_to(2.0 * state_weight, states.shape))
+        inputs = self._input_idx
+        # backward rate terms: every u_k has one (u_0 against u_hat); forward: all but the last
+        forward = (np.arange(horizon) < horizon - 1).astype(float)[:, None]
+        diag = 2.0 * input_weight[None, :] + 2.0 * rate_weight[None, :] * (1.0 + forward)
+        add(inputs, inputs, diag)
+        add(inputs[:-1], inputs[1:], np.broadcast_to(-2.0 * rate_weight, inputs[1:].shape))
+        add(col_slack_idx, col_slack_idx, 2.0 * weights.collision_slack_quadratic)
+        add(safe_slack_idx, safe_slack_idx, 2.0 * weights.safety_slack_quadratic)
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        self.cost_matrix, positions = csc_with_positions(r, c, (n, n))
+        self.cost_matrix.data[positions] = np.concatenate(values)
+        self.cost_vector = np.zeros(n)
+        self.cost_vector[col_slack_idx] = weights.collision_slack_linear
+        self.cost_vector[safe_slack_idx] = weights.safety_slack_linear
+        self._two_q = 2.0 * state_weight
+        self._two_s = 2.0 * rate_weight
+
+    @property
+    def n_variables(self) -> int:
+        return self.layout.n_variables
+
+    def update(
+        self,
+        measured_state: np.ndarray,
+        linearization_states: np.ndarray,
+        linearization_inputs: np.ndarray,
+        tracking_reference: np.ndarray,
+        last_input: np.ndarray,
+        predicted_others: np.ndarray,
+    ) -> None:
+        """Overwrite the QP's values for one MPC step.
+
+        Args:
+            measured_state: x_hat (4,).
+            linearization_states: (N + 1, 4) x^r_k (stage 0 should be x_hat).
+            linearization_inputs: (N, 2) u^r_k.
+            tracking_reference: (N + 1, 4) x^ref_k (stage 0 unused).
+            last_input: u_hat (2,), the previously applied input.
+            predicted_others: (N + 1, V_obs, 4) with V_obs <= V.
+        """
+        horizon = self.config.horizon
+        lin_states = np.ascontiguousarray(linearization_states, dtype=np.float64)
+        lin_inputs = np.ascontiguousarray(linearization_inputs, dtype=np.float64)
+        self.model.linearize(lin_states, lin_inputs, self._next_states, self._state_matrices,
+                             self._input_matrices, self._affine_offsets)
+        eq_data = self.equality_matrix.data
+        eq_data[self._a_pos] = -self._state_matrices
+        eq_data[self._b_pos] = -self._input_matrices
+        self.equality_rhs[:STATE_DIM] = measured_state
+        self.equality_rhs[STATE_DIM:] = self._affine_offsets.ravel()
+
+        if predicted_others.shape[1] > self.config.max_vehicles:
+            raise ValueError(
+                f"{predicted_others.shape[1]} vehicles exceed max_vehicles="
+                f"{self.config.max_vehicles}")
+        n_observed = predicted_others.shape[1]
+        if n_observed == 0:
+            predicted_others = self._empty_prediction
+        linearize_collision_constraints(
+            lin_states, np.ascontiguousarray(predicted_others, dtype=np.float64), n_observed,
+            self.circle_offsets, self.collision_semi_axes, self.safety_semi_axes,
+            self._coefficients, self._row_lower, self._safety_slack_upper,
+            self.critical_circle)
+        ineq_data = self.inequality_matrix.data
+        ineq_data[self._coef_pos] = self._coefficients
+        self.inequality_lower[:] = self._row_lower.ravel()
+        self.variable_upper[self._safe_slack_idx] = self._safety_slack_upper
+        self.general_upper[self._safe_slack_box_rows] = self._safety_slack_upper
+
+        self.cost_vector[self._state_idx[1:]] = -self._two_q * tracking_reference[1:]
+        self.cost_vector[self._input_idx[0]] = -self._two_s * np.asarray(last_input)
+
+        self.general_matrix.data[self._gen_from_eq] = eq_data
+        self.general_matrix.data[self._gen_from_ineq] = ineq_data
+        self.general_lower[:self.n_equalities] = self.equality_rhs
+        self.general_upper[:self.n_equalities] = self.equality_rhs
+        self.general_lower[self.n_equalities:self.n_equalities + self.n_inequalities] = (
+            self.inequality_lower)
+
+    def split_solution(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                     np.ndarray]:
+        """(states (N + 1, 4), inputs (N, 2), collision slacks (V,), safety slacks (N, V))."""
+        layout = self.layout
+        return (z[self._state_idx], z[self._input_idx], z[layout.collision_slack_indices()],
+                z[layout.safety_slack_indices()])
+
+    def pack(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        """z with the given states and inputs and zero slacks (e.g. a warm start)."""
+        z = np.zeros(self.n_variables)
+        z[self._state_idx] = states
+        z[self._input_idx] = inputs
+        return z
+
+    def constraint_violation(self, z: np.ndarray) -> dict[str, float]:
+        """Largest violation of each constraint group at z (0 when satisfied)."""
+        eq = np.abs(self.equality_matrix @ z - self.equality_rhs)
+        ineq = self.inequality_lower - self.inequality_matrix @ z
+        lower = self.variable_lower - z
+        upper = z - self.variable_upper
+        return {
+            "equality": float(eq.max(initial=0.0)),
+            "inequality": float(np.maximum(ineq, 0.0).max(initial=0.0)),
+            "box": float(np.maximum(np.maximum(lower, upper), 0.0).max(initial=0.0)),
+        }
+
+    def objective(self, z: np.ndarray) -> float:
+        """1/2 z^T P z + q^T z with P's stored upper triangle."""
+        upper = self.cost_matrix
+        quad = z @ (upper @ z) + z @ (upper.T @ z) - z @ (upper.diagonal() * z)
+        return 0.5 * float(quad) + float(self.cost_vector @ z)
