@@ -80,6 +80,10 @@ class SyntheticHighway:
                  others: np.ndarray | None = None,
                  bicycle: BicycleParameters | None = None) -> None:
         self.model = KinematicBicycle(bicycle)
+        params = self.model.parameters
+        self._one_substep = KinematicBicycle(BicycleParameters(
+            length_m=params.length_m, control_period_s=params.substep_s, n_substeps=1,
+            max_speed_m_s=params.max_speed_m_s, min_speed_m_s=params.min_speed_m_s))
         self.rng = np.random.default_rng(seed)
         lanes = np.asarray(LANE_CENTRES_M)
         lane = int(self.rng.integers(3)) if ego_lane is None else ego_lane
@@ -155,12 +159,9 @@ class SyntheticHighway:
         """Advance one control period with the ego input (delta, a) held constant."""
         params = self.model.parameters
         h = params.substep_s
-        one_substep = KinematicBicycle(BicycleParameters(
-            length_m=params.length_m, control_period_s=h, n_substeps=1,
-            max_speed_m_s=params.max_speed_m_s, min_speed_m_s=params.min_speed_m_s))
         for _ in range(params.n_substeps):
             accelerations = self._idm_accelerations()
-            self.ego = one_substep.step(self.ego, action)
+            self.ego = self._one_substep.step(self.ego, action)
             self.others[:, 0] += self.others[:, 3] * h
             self.others[:, 3] = np.maximum(self.others[:, 3] + accelerations * h, 0.0)
         self.steps += 1
