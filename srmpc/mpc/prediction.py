@@ -23,7 +23,7 @@ class TrafficPredictor(Protocol):
     """Predicts other vehicles' states at stages 0..horizon."""
 
     def __call__(self, others: np.ndarray, horizon: int, control_period_s: float) -> np.ndarray:
-        """Return (horizon + 1, V, 4) predicted [x, y, heading, speed]; stage 0 equals ``others``."""
+        """Return (horizon + 1, V, 4) predicted [x, y, heading, speed]; stage 0 = ``others``."""
         ...
 
 

@@ -334,7 +334,6 @@ class LtvMpcQp:
             last_input: u_hat (2,), the previously applied input.
             predicted_others: (N + 1, V_obs, 4) with V_obs <= V.
         """
-        horizon = self.config.horizon
         lin_states = np.ascontiguousarray(linearization_states, dtype=np.float64)
         lin_inputs = np.ascontiguousarray(linearization_inputs, dtype=np.float64)
         self.model.linearize(lin_states, lin_inputs, self._next_states, self._state_matrices,
