@@ -17,7 +17,6 @@ from dataclasses import fields
 from pathlib import Path
 
 import gymnasium
-import numpy as np
 
 from srmpc import SCENARIO_ID
 from srmpc.config.compose import ConfigError
@@ -128,9 +127,8 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
         if bar is not None:
             bar.close()
     summary = aggregate_metrics([r.metrics for r in records]).as_dict()
-    summary["terminations"] = {
-        reason: int(np.sum([r.termination == reason for r in records])) for reason in ("collision", "offroad", "truncated")
-    }
+    reasons = [r.termination for r in records]
+    summary["terminations"] = {reason: reasons.count(reason) for reason in ("collision", "offroad", "truncated")}
     summary["controller"] = config.evaluation.controller.value
     summary["traffic"] = config.scenario.traffic
     atomic_write_text(output_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
