@@ -92,8 +92,11 @@ class ScenarioParameters:
     metres. ``spacing`` is derived from ``mean_spawn_gap_m`` so that the expected gap between
     successively spawned vehicles is that value (paper: about 25 m light, 15 m dense). First
     ``vehicles_behind_ego`` vehicles are spawned, then the ego, then the rest, so traffic surrounds
-    the ego: with 16 behind and 24 ahead the ego keeps leaders and followers within the 100 m
-    perception range for the whole 80 s episode even when it gains 4 m/s on the traffic.
+    the ego. 16 behind and 24 ahead cover 400 m behind and 600 m ahead in light traffic (240 m and
+    360 m in dense), more than the ego gains on the traffic in 80 s at 25 m/s against the 21-24 m/s
+    IDM vehicles plus the 100 m perception range. Measured with the lane-keeping baseline (6
+    episodes per level, 400 steps each): every step had a leader and a follower within 100 m, and
+    on average 5.2 (light) and 5.8 (dense) of the 6 observation slots were filled.
     """
 
     traffic: str = "light"
