@@ -1,0 +1,89 @@
+"""``python -m srmpc [overrides]``: the Hydra entry point.
+
+Examples::
+
+    python -m srmpc +experiment=smoke
+    python -m srmpc +experiment=dense_traffic evaluation.episodes=100
+    python -m srmpc --cfg job              # print the composed config
+
+Config errors (wrong type, unknown key, invalid choice, invalid value) exit with status 2 and one
+line naming the key and the value. SIGTERM ends the run cleanly: the MLflow run is marked FAILED
+and finished episodes stay on disk for a resume.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from srmpc.config.compose import ConfigError, compose_config, to_objects
+from srmpc.config.schema import Config, Stage, register_schema
+from srmpc.tracking import tracked_run
+
+EXIT_CONFIG_ERROR = 2
+
+
+def _fail(message: str) -> None:
+    print(f"srmpc: config error: {message}", file=sys.stderr)
+    sys.exit(EXIT_CONFIG_ERROR)
+
+
+def _raise_on_sigterm(signum, frame) -> None:
+    raise SystemExit(128 + signum)
+
+
+def run(cfg: DictConfig, output_dir: Path) -> dict:
+    """Run the composed config's stage; returns the stage's summary."""
+    config: Config = to_objects(cfg)
+    config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
+    tracking = config.tracking
+    run_name = f"{config.stage.value}-{config.evaluation.controller.value}-{config.scenario.traffic}"
+    with tracked_run(
+        tracking.enabled, tracking.uri, tracking.artifact_location, tracking.experiment_name, run_name,
+        OmegaConf.to_container(cfg, resolve=True), config_yaml,
+    ) as active_run:
+        if config.stage is Stage.evaluate:
+            from srmpc.stages.evaluate import run_evaluation
+
+            eval_dir = Path(config.evaluation.output_dir) if config.evaluation.output_dir else output_dir
+            return run_evaluation(config, config_yaml, eval_dir, active_run)
+    raise ConfigError(f"stage={config.stage.value}: no runner")
+
+
+register_schema()
+
+
+@hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+def hydra_main(cfg: DictConfig) -> None:
+    signal.signal(signal.SIGTERM, _raise_on_sigterm)
+    try:
+        summary = run(cfg, Path(HydraConfig.get().runtime.output_dir))
+    except ConfigError as error:
+        _fail(str(error))
+    print({k: v for k, v in summary.items() if not isinstance(v, dict)})
+
+
+def _plain_overrides(args: list[str]) -> list[str] | None:
+    """The overrides to validate up front, or None when Hydra flags make that Hydra's job."""
+    if any(arg.startswith("-") for arg in args):
+        return None
+    return [arg for arg in args if not arg.lstrip("+~").startswith("hydra")]
+
+
+def main() -> None:
+    overrides = _plain_overrides(sys.argv[1:])
+    if overrides is not None:
+        try:
+            compose_config(overrides)
+        except ConfigError as error:
+            _fail(str(error))
+    hydra_main()
+
+
+if __name__ == "__main__":
+    main()

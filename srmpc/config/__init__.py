@@ -1,0 +1,1 @@
+"""Typed configuration: the Hydra schema, composition and one-line error reporting."""

@@ -1,0 +1,1 @@
+"""Closed-loop controllers: observation (and scene) in, physical action (delta, a) out."""

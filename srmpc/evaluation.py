@@ -1,0 +1,56 @@
+"""Closed-loop evaluation: run a controller for episodes of the scenario, collect the metrics."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import gymnasium
+import numpy as np
+
+from srmpc.metrics import EpisodeMetrics, episode_metrics
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One evaluated episode."""
+
+    episode: int
+    seed: int
+    metrics: EpisodeMetrics
+    termination: str
+    """"collision", "offroad" or "truncated"."""
+
+
+def run_episode(env: gymnasium.Env, act: Callable[[np.ndarray], np.ndarray], seed: int) -> tuple[EpisodeMetrics, str]:
+    """One episode from ``env.reset(seed=seed)`` until termination or truncation."""
+    observation, _ = env.reset(seed=seed)
+    reward_primes, event_costs, vxs, si_costs = [], [], [], []
+    while True:
+        observation, _, terminated, truncated, info = env.step(act(observation))
+        reward_primes.append(info["reward_prime"])
+        event_costs.append(info["event_cost"])
+        vxs.append(info["vx"])
+        si_costs.append(info["cost"])
+        if terminated or truncated:
+            reason = info["termination"] if terminated else "truncated"
+            return episode_metrics(reward_primes, event_costs, vxs, si_costs), reason
+
+
+def evaluate(
+    env: gymnasium.Env,
+    act: Callable[[np.ndarray], np.ndarray],
+    episodes: int,
+    seed: int,
+    on_episode: Callable[[EpisodeRecord], None] | None = None,
+    first_episode: int = 0,
+) -> list[EpisodeRecord]:
+    """Episodes ``first_episode .. episodes-1``, episode i seeded with ``seed + i``."""
+    records = []
+    for episode in range(first_episode, episodes):
+        metrics, reason = run_episode(env, act, seed + episode)
+        record = EpisodeRecord(episode, seed + episode, metrics, reason)
+        records.append(record)
+        if on_episode is not None:
+            on_episode(record)
+    return records

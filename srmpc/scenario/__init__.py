@@ -1,0 +1,1 @@
+"""The paper's highway scenario: geometry, parameters, observation, reward, safety index, env."""

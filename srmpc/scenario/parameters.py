@@ -1,0 +1,192 @@
+"""Typed parameters of the scenario, with units. These dataclasses are also the Hydra schema.
+
+Every value that shapes an episode lives here; library code receives an instance, never a raw
+config. Validation in ``__post_init__`` names the bad field and value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from srmpc.scenario import road
+
+
+def _check(condition: bool, key: str, value: object, expectation: str) -> None:
+    if not condition:
+        raise ValueError(f"{key}={value!r}: {expectation}")
+
+
+@dataclass
+class RewardParameters:
+    """Paper eq. (reward-function): r' = -g (vx_ref - vx)^2 - (1 - g) (y_ref - y)^2.
+
+    The training reward is r = exp(r' / scale), which lies in (0, 1] and equals 1 exactly on the
+    reference (vx = vx_ref on the right-lane centre). With scale = 10, r' = -10 (e.g. 4.5 m/s too
+    slow, or 4.5 m off the lane centre at g = 0.5) gives r = 0.37.
+    """
+
+    vx_ref_mps: float = 25.0
+    """Longitudinal reference speed v_x^ref [m/s] (paper: 25 m/s)."""
+    speed_weight: float = 0.5
+    """g in [0, 1]: weight of the squared speed error; 1 - g weighs the squared lane error."""
+    scale: float = 10.0
+    """Scale of the exponentiation r = exp(r' / scale) [units of r']."""
+
+    def __post_init__(self) -> None:
+        _check(0.0 <= self.speed_weight <= 1.0, "speed_weight", self.speed_weight, "must lie in [0, 1]")
+        _check(self.scale > 0.0, "scale", self.scale, "must be > 0")
+        _check(self.vx_ref_mps > 0.0, "vx_ref_mps", self.vx_ref_mps, "must be > 0")
+
+
+@dataclass
+class SafetyIndexParameters:
+    """Paper eq. (si): phi = (sigma + d_min)^n - d^n - k * d_dot, and the cost c of the SI transition.
+
+    Per surrounding vehicle, d is the gap between the two axis-aligned bounding boxes [m] (0 when
+    they overlap) and d_dot its rate [m/s]; on lanes other than the ego's the longitudinal part of
+    d_dot is zeroed, as in the paper. The road edges count as obstacles too, with d the distance of
+    the ego's centre to the edge (the ego leaves the road when its centre crosses it) and
+    ``edge_d_min_m`` in place of d_min. phi(s) is the maximum over the observed vehicles and both
+    edges.
+
+    Why these values: with n = 1, phi > 0 exactly when the gap is below sigma + d_min + k * closing
+    speed, so k is a look-ahead time [s]. k = 1 s with d_min = 1 m and sigma = 0.5 m flags a
+    same-lane leader at 11.5 m when closing at 10 m/s (its stopping distance at 5 m/s^2 is 10 m), a
+    vehicle alongside (2 m box gap) when drifting towards it faster than 0.5 m/s, and a road edge
+    from the lane centre (2 m) when drifting towards it faster than 1.5 m/s. eta = 0.1 m makes an
+    unsafe state recover by at least 0.1 m per 0.2 s step.
+    """
+
+    sigma_m: float = 0.5
+    """Safety margin sigma [m], added to d_min."""
+    d_min_m: float = 1.0
+    """Minimum bumper-to-bumper gap to another vehicle d_min [m]."""
+    edge_d_min_m: float = 0.0
+    """Minimum distance from the ego's centre to a road edge [m]."""
+    n: float = 1.0
+    """Exponent n of the distances (> 0)."""
+    k_s: float = 1.0
+    """Gain k on the gap rate d_dot [s when n = 1]."""
+    eta: float = 0.1
+    """Slack eta of the safe-control condition phi(s') < max(phi(s) - eta, 0) [units of phi]."""
+    cost_floor: float = -0.1
+    """Lower clip of the cost, the paper's -0.1 (keeps the policy from becoming too conservative)."""
+
+    def __post_init__(self) -> None:
+        _check(self.n > 0.0, "n", self.n, "must be > 0")
+        _check(self.d_min_m >= 0.0, "d_min_m", self.d_min_m, "must be >= 0")
+        _check(self.sigma_m >= 0.0, "sigma_m", self.sigma_m, "must be >= 0")
+        _check(self.edge_d_min_m >= 0.0, "edge_d_min_m", self.edge_d_min_m, "must be >= 0")
+        _check(self.k_s >= 0.0, "k_s", self.k_s, "must be >= 0")
+        _check(self.eta >= 0.0, "eta", self.eta, "must be >= 0")
+        _check(self.cost_floor <= 0.0, "cost_floor", self.cost_floor, "must be <= 0")
+
+
+@dataclass
+class ScenarioParameters:
+    """The paper's highway scenario: 3 lanes, IDM traffic without lane changes, one ego vehicle.
+
+    Spawning follows highway-env's ``Vehicle.create_random``: each new vehicle goes on a random lane
+    ahead of the furthest vehicle so far, by ``spacing * (12 + speed) * exp(-5/40 * 3) * U(0.9, 1.1)``
+    metres. ``spacing`` is derived from ``mean_spawn_gap_m`` so that the expected gap between
+    successively spawned vehicles is that value (paper: about 25 m light, 15 m dense). First
+    ``vehicles_behind_ego`` vehicles are spawned, then the ego, then the rest, so traffic surrounds
+    the ego. 16 behind and 24 ahead cover 400 m behind and 600 m ahead in light traffic (240 m and
+    360 m in dense), more than the ego gains on the traffic in 80 s at 25 m/s against the 21-24 m/s
+    IDM vehicles plus the 100 m perception range. Measured with the lane-keeping baseline (6
+    episodes per level, 400 steps each): every step had a leader and a follower within 100 m, and
+    on average 5.2 (light) and 5.8 (dense) of the 6 observation slots were filled.
+    """
+
+    traffic: str = "light"
+    """Label of the traffic level, used in run names and result files."""
+    vehicles_count: int = 40
+    """Number of IDM vehicles besides the ego."""
+    vehicles_behind_ego: int = 16
+    """How many of them are spawned behind the ego."""
+    mean_spawn_gap_m: float = 25.0
+    """Expected longitudinal gap between successively spawned vehicles [m]."""
+    other_speed_min_mps: float = 21.0
+    """Lower bound of the uniform initial (and IDM target) speed of other vehicles [m/s]."""
+    other_speed_max_mps: float = 24.0
+    """Upper bound of the same [m/s] (21-24 m/s is highway-env's 0.7-0.8 x speed limit)."""
+    ego_speed_min_mps: float = 20.0
+    """Lower bound of the uniform initial ego speed [m/s]."""
+    ego_speed_max_mps: float = 25.0
+    """Upper bound of the uniform initial ego speed [m/s]."""
+    simulation_frequency_hz: int = 15
+    """Integration frequency of the vehicle dynamics [Hz]."""
+    policy_frequency_hz: int = 5
+    """Control frequency [Hz]; dt = 0.2 s, 3 integration sub-steps per step."""
+    episode_steps: int = 400
+    """Truncation after this many control steps (400 x 0.2 s = 80 s)."""
+    steering_max_rad: float = 0.1
+    """Steering angle range [-max, max] [rad]. At 25 m/s, 0.1 rad already commands ~12 m/s^2 of
+    lateral acceleration, beyond tyre limits, so the range limits no highway manoeuvre."""
+    acceleration_min_mps2: float = -5.0
+    """Lowest acceleration command [m/s^2] (highway-env's default range)."""
+    acceleration_max_mps2: float = 5.0
+    """Highest acceleration command [m/s^2]."""
+    perception_range_m: float = 100.0
+    """Vehicles further than this longitudinally are not observed [m]."""
+    reward: RewardParameters = field(default_factory=RewardParameters)
+    safety_index: SafetyIndexParameters = field(default_factory=SafetyIndexParameters)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.reward, dict):
+            self.reward = RewardParameters(**self.reward)
+        if isinstance(self.safety_index, dict):
+            self.safety_index = SafetyIndexParameters(**self.safety_index)
+        _check(self.vehicles_count >= 1, "vehicles_count", self.vehicles_count, "must be >= 1")
+        _check(
+            0 <= self.vehicles_behind_ego <= self.vehicles_count,
+            "vehicles_behind_ego",
+            self.vehicles_behind_ego,
+            f"must lie in [0, vehicles_count={self.vehicles_count}]",
+        )
+        _check(self.mean_spawn_gap_m > 0, "mean_spawn_gap_m", self.mean_spawn_gap_m, "must be > 0")
+        for low_key, high_key in (
+            ("other_speed_min_mps", "other_speed_max_mps"),
+            ("ego_speed_min_mps", "ego_speed_max_mps"),
+            ("acceleration_min_mps2", "acceleration_max_mps2"),
+        ):
+            low, high = getattr(self, low_key), getattr(self, high_key)
+            _check(low <= high, low_key, low, f"must be <= {high_key}={high}")
+        _check(self.other_speed_min_mps >= 0, "other_speed_min_mps", self.other_speed_min_mps, "must be >= 0")
+        _check(self.ego_speed_max_mps <= road.MAX_SPEED, "ego_speed_max_mps", self.ego_speed_max_mps,
+               f"must be <= {road.MAX_SPEED}")
+        _check(self.policy_frequency_hz > 0, "policy_frequency_hz", self.policy_frequency_hz, "must be > 0")
+        _check(
+            self.simulation_frequency_hz >= self.policy_frequency_hz
+            and self.simulation_frequency_hz % self.policy_frequency_hz == 0,
+            "simulation_frequency_hz",
+            self.simulation_frequency_hz,
+            f"must be a multiple of policy_frequency_hz={self.policy_frequency_hz}",
+        )
+        _check(self.episode_steps >= 1, "episode_steps", self.episode_steps, "must be >= 1")
+        _check(0 < self.steering_max_rad < math.pi / 2, "steering_max_rad", self.steering_max_rad,
+               "must lie in (0, pi/2)")
+        _check(self.acceleration_min_mps2 < self.acceleration_max_mps2, "acceleration_min_mps2",
+               self.acceleration_min_mps2, "must be < acceleration_max_mps2")
+        _check(self.perception_range_m > 0, "perception_range_m", self.perception_range_m, "must be > 0")
+
+    @property
+    def control_period_s(self) -> float:
+        """dt of one control step [s]."""
+        return 1.0 / self.policy_frequency_hz
+
+    @property
+    def substeps(self) -> int:
+        """Integration sub-steps per control step."""
+        return self.simulation_frequency_hz // self.policy_frequency_hz
+
+    @property
+    def spawn_spacing(self) -> float:
+        """highway-env's ``spacing`` argument (1 / vehicles_density) giving ``mean_spawn_gap_m``.
+
+        E[gap] = spacing * (12 + E[speed]) * exp(-5/40 * lanes), with E[U(0.9, 1.1)] = 1 and the
+        other vehicles' mean speed.
+        """
+        mean_speed = 0.5 * (self.other_speed_min_mps + self.other_speed_max_mps)
+        return self.mean_spawn_gap_m / ((12.0 + mean_speed) * math.exp(-5.0 / 40.0 * road.LANE_COUNT))

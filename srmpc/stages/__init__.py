@@ -1,0 +1,1 @@
+"""What ``python -m srmpc stage=...`` runs: one module per stage."""

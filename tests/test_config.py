@@ -1,0 +1,70 @@
+"""Every experiment composes; bad input exits non-zero with one line naming the key and value."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from srmpc.config.compose import CONFIG_DIR, ConfigError, compose_config, to_objects
+from srmpc.config.schema import Config
+from srmpc.scenario.parameters import ScenarioParameters
+
+EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
+
+
+def test_the_paper_experiments_exist():
+    assert {"light_traffic", "dense_traffic", "smoke"} <= set(EXPERIMENTS)
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_every_experiment_composes_into_the_schema(experiment):
+    config = to_objects(compose_config([f"+experiment={experiment}"]))
+    assert isinstance(config, Config) and isinstance(config.scenario, ScenarioParameters)
+
+
+@pytest.mark.parametrize("group", ["scenario", "agent", "planner", "evaluation", "tracking"])
+def test_every_group_option_composes(group):
+    for option in sorted(p.stem for p in (CONFIG_DIR / group).glob("*.yaml")):
+        to_objects(compose_config([f"{group}={option}"]))
+
+
+def test_dense_traffic_differs_from_light_only_in_traffic():
+    light = to_objects(compose_config(["+experiment=light_traffic"])).scenario
+    dense = to_objects(compose_config(["+experiment=dense_traffic"])).scenario
+    assert (light.mean_spawn_gap_m, dense.mean_spawn_gap_m) == (25.0, 15.0)
+    assert light.vehicles_count == dense.vehicles_count and light.episode_steps == dense.episode_steps == 400
+
+
+@pytest.mark.parametrize(
+    ("override", "fragments"),
+    [
+        ("scenario.episode_steps=abc", ["scenario.episode_steps", "'abc'"]),
+        ("scenario.typo=1", ["scenario.typo", "'typo'"]),
+        ("scenario=foo", ["scenario=foo", "dense, light"]),
+        ("+experiment=nope", ["experiment=nope", "smoke"]),
+        ("evaluation.controller=zzz", ["evaluation.controller", "'zzz'"]),
+        ("scenario.mean_spawn_gap_m=-1", ["scenario.mean_spawn_gap_m=-1.0"]),
+        ("scenario.safety_index.n=0", ["scenario.safety_index.n=0.0"]),
+    ],
+)
+def test_bad_config_is_one_clear_error(override, fragments):
+    with pytest.raises(ConfigError) as error:
+        compose_config([override])
+    message = str(error.value)
+    assert "\n" not in message
+    for fragment in fragments:
+        assert fragment in message
+
+
+def test_cli_bad_value_exits_non_zero_with_one_line(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "srmpc", "scenario.episode_steps=abc"],
+        capture_output=True, text=True, cwd=tmp_path, timeout=120,
+    )
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert lines == [
+        "srmpc: config error: scenario.episode_steps: Value 'abc' of type 'str' could not be converted to Integer"
+    ]
+    assert "Traceback" not in result.stderr and not Path(tmp_path, "mlflow.db").exists()
