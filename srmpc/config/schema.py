@@ -27,6 +27,8 @@ class ControllerName(Enum):
 
     lane_keeping = "lane_keeping"
     """IDM + lane-centre steering baseline (srmpc.controllers.lane_keeping)."""
+    ltv_mpc = "ltv_mpc"
+    """LTV-MPC with the ``planner`` settings (srmpc.controllers.ltv_mpc)."""
 
 
 @dataclass
@@ -73,12 +75,51 @@ class AgentConfig:
 
 @dataclass
 class PlannerConfig:
-    """LTV-MPC settings (consumed by the planner)."""
+    """LTV-MPC settings (paper section "MPC for Automated Driving"); see srmpc/mpc/ocp.py for the math.
+
+    Input bounds come from the scenario's action ranges; road and speed bounds from its geometry.
+    """
 
     horizon_steps: int = 25
     """Prediction horizon N (25 x 0.2 s = 5 s)."""
-    solver: str = "piqp"
-    """QP solver: one of the names srmpc.mpc lists (checked when the planner is built)."""
+    solver: str = "piqp_native"
+    """QP solver: piqp_native (default fast path), osqp_native, or via qpsolvers osqp, clarabel, piqp, proxqp."""
+    max_vehicles: int = 6
+    """Other-vehicle slots in the QP (the scenario observes at most 6)."""
+    state_weights: list[float] = field(default_factory=lambda: [0.0, 0.5, 20.0, 0.5])
+    """Q diagonal for (x [1/m^2], y [1/m^2], heading [1/rad^2], speed [s^2/m^2]); x is not tracked."""
+    input_weights: list[float] = field(default_factory=lambda: [50.0, 0.05])
+    """R diagonal for (steering [1/rad^2], acceleration [s^4/m^2])."""
+    input_rate_weights: list[float] = field(default_factory=lambda: [500.0, 0.2])
+    """S diagonal on input differences (the first against the last applied input)."""
+    collision_slack_linear: float = 1.0e4
+    """Linear penalty on the per-vehicle collision slack (ellipse-norm units)."""
+    collision_slack_quadratic: float = 1.0e5
+    """Quadratic penalty on the per-vehicle collision slack."""
+    safety_slack_linear: float = 50.0
+    """Linear penalty on the per-stage safety-region slack (cheaper: entered only if necessary)."""
+    safety_slack_quadratic: float = 500.0
+    """Quadratic penalty on the safety-region slack."""
+    n_ego_circles: int = 2
+    """Circles covering the ego (>= 2)."""
+    safety_margin_longitudinal_m: float = 8.0
+    """Safety-region semi-major axis minus the collision ellipse's [m]."""
+    safety_margin_lateral_m: float = 0.3
+    """Safety-region semi-minor axis minus the collision ellipse's [m]."""
+
+    def __post_init__(self) -> None:
+        from srmpc.mpc.solvers import available_solvers
+
+        if self.solver not in available_solvers():
+            raise ValueError(f"solver={self.solver!r}: unknown QP solver; available: {', '.join(available_solvers())}")
+        if self.horizon_steps < 2:
+            raise ValueError(f"horizon_steps={self.horizon_steps}: must be >= 2")
+        if self.n_ego_circles < 2:
+            raise ValueError(f"n_ego_circles={self.n_ego_circles}: the ego needs at least 2 circles")
+        for key, size in (("state_weights", 4), ("input_weights", 2), ("input_rate_weights", 2)):
+            values = list(getattr(self, key))
+            if len(values) != size or min(values) < 0:
+                raise ValueError(f"{key}={values}: needs {size} non-negative weights")
 
 
 @dataclass

@@ -49,8 +49,12 @@ class LaneKeepingController:
     def reset(self) -> None:
         """No internal state."""
 
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        """(delta [rad], a [m/s^2]) from one normalized observation."""
+    def episode_outcomes(self) -> dict[str, int]:
+        """A fixed law: no outcomes to count."""
+        return {}
+
+    def act(self, observation: np.ndarray, scene=None) -> np.ndarray:
+        """(delta [rad], a [m/s^2]) from one normalized observation (the scene is not needed)."""
         raw = np.asarray(observation, dtype=np.float64) * OBSERVATION_SCALE
         gains = self.gains
         ego = raw[SLOT_COUNT * SLOT_FEATURES:]

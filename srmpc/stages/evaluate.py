@@ -21,24 +21,53 @@ import gymnasium
 from srmpc import SCENARIO_ID
 from srmpc.config.compose import ConfigError
 from srmpc.config.schema import Config, ControllerName
+from srmpc.controllers import Controller
 from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGains
+from srmpc.controllers.ltv_mpc import LtvMpcSceneController, ocp_config
 from srmpc.evaluation import EpisodeRecord, evaluate
 from srmpc.metrics import EpisodeMetrics, aggregate_metrics
+from srmpc.mpc.controller import LtvMpcController
+from srmpc.mpc.ocp import CollisionGeometry, TrackingWeights
+from srmpc.mpc.planner import StepOutcome
+from srmpc.scenario import road
 from srmpc.tracking import Run
 
-EPISODE_COLUMNS = ["episode", "seed", *[f.name for f in fields(EpisodeMetrics)], "termination"]
+OUTCOME_COLUMNS = [f"steps_{outcome.value}" for outcome in StepOutcome]
+"""Per-episode planner outcome counts (0 for controllers without outcomes)."""
+EPISODE_COLUMNS = ["episode", "seed", *[f.name for f in fields(EpisodeMetrics)], "termination", *OUTCOME_COLUMNS]
 
 
-def build_controller(config: Config):
-    """The callable observation -> action of ``evaluation.controller``."""
+def build_controller(config: Config) -> Controller:
+    """The controller named by ``evaluation.controller``, built from the config's plain values."""
     scenario = config.scenario
-    if config.evaluation.controller is ControllerName.lane_keeping:
-        controller = LaneKeepingController(
+    name = config.evaluation.controller
+    if name is ControllerName.lane_keeping:
+        return LaneKeepingController(
             scenario.steering_max_rad, scenario.acceleration_min_mps2, scenario.acceleration_max_mps2,
             LaneKeepingGains(target_speed_mps=scenario.reward.vx_ref_mps),
         )
-        return controller.act
-    raise ConfigError(f"evaluation.controller={config.evaluation.controller.value}: not implemented")
+    if name is ControllerName.ltv_mpc:
+        planner = config.planner
+        weights = TrackingWeights(
+            state=tuple(planner.state_weights), input=tuple(planner.input_weights),
+            input_rate=tuple(planner.input_rate_weights),
+            collision_slack_linear=planner.collision_slack_linear,
+            collision_slack_quadratic=planner.collision_slack_quadratic,
+            safety_slack_linear=planner.safety_slack_linear,
+            safety_slack_quadratic=planner.safety_slack_quadratic,
+        )
+        geometry = CollisionGeometry(
+            n_ego_circles=planner.n_ego_circles,
+            safety_margin_longitudinal_m=planner.safety_margin_longitudinal_m,
+            safety_margin_lateral_m=planner.safety_margin_lateral_m,
+        )
+        ocp = ocp_config(scenario, planner.horizon_steps, planner.max_vehicles, weights, geometry)
+        y_ref = float(road.LANE_CENTERS[road.RIGHT_LANE])
+        return LtvMpcSceneController(
+            LtvMpcController(ocp, planner.solver, reference_lateral_position_m=y_ref,
+                             reference_speed_m_s=scenario.reward.vx_ref_mps)
+        )
+    raise ConfigError(f"evaluation.controller={name.value}: not implemented")
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -61,7 +90,10 @@ def read_finished_episodes(path: Path) -> list[EpisodeRecord]:
                     n_steps=int(row["n_steps"]), mean_vx=float(row["mean_vx"]),
                     si_cost_return=float(row["si_cost_return"]),
                 )
-                records.append(EpisodeRecord(int(row["episode"]), int(row["seed"]), metrics, row["termination"]))
+                outcomes = {c.removeprefix("steps_"): int(row[c]) for c in OUTCOME_COLUMNS if int(row[c])}
+                records.append(
+                    EpisodeRecord(int(row["episode"]), int(row["seed"]), metrics, row["termination"], outcomes)
+                )
             except (TypeError, ValueError, KeyError):
                 break
     return records
@@ -89,13 +121,14 @@ def prepare_output_dir(output_dir: Path, config_yaml: str) -> list[EpisodeRecord
 
 def _row(record: EpisodeRecord) -> list:
     m = record.metrics
+    outcomes = [record.outcomes.get(c.removeprefix("steps_"), 0) for c in OUTCOME_COLUMNS]
     return [record.episode, record.seed, m.episode_return, m.event_cost, m.n_steps, m.mean_vx,
-            m.si_cost_return, record.termination]
+            m.si_cost_return, record.termination, *outcomes]
 
 
 def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run, progress: bool = True) -> dict:
     """Evaluate, appending to ``output_dir``; returns the summary written to ``summary.json``."""
-    act = build_controller(config)
+    controller = build_controller(config)
     finished = prepare_output_dir(output_dir, config_yaml)
     episodes = config.evaluation.episodes
     if finished:
@@ -119,7 +152,7 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
 
     try:
         records = finished + evaluate(
-            env, act, episodes, config.evaluation.seed, on_episode=on_episode, first_episode=len(finished)
+            env, controller, episodes, config.evaluation.seed, on_episode=on_episode, first_episode=len(finished)
         )
     finally:
         csv_handle.close()
@@ -129,6 +162,10 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
     summary = aggregate_metrics([r.metrics for r in records]).as_dict()
     reasons = [r.termination for r in records]
     summary["terminations"] = {reason: reasons.count(reason) for reason in ("collision", "offroad", "truncated")}
+    summary["outcomes"] = {
+        c.removeprefix("steps_"): sum(r.outcomes.get(c.removeprefix("steps_"), 0) for r in records)
+        for c in OUTCOME_COLUMNS
+    }
     summary["controller"] = config.evaluation.controller.value
     summary["traffic"] = config.scenario.traffic
     atomic_write_text(output_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
