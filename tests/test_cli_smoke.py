@@ -69,3 +69,11 @@ def test_results_of_another_config_are_never_overwritten(tmp_path):
     with pytest.raises(ValueError, match="different config"):
         run_evaluation(_config(1), "config B\n", out, Run(None), progress=False)
     assert (out / "episodes.csv").read_text() == before
+
+
+def test_ltv_mpc_controller_runs_through_evaluation_and_counts_outcomes(tmp_path):
+    config = _config(1, **{"evaluation.controller": "ltv_mpc"})
+    summary = run_evaluation(config, "ltv\n", tmp_path / "eval", Run(None), progress=False)
+    assert summary["controller"] == "ltv_mpc" and summary["mean_n_steps"] > 0
+    assert sum(summary["outcomes"].values()) == summary["mean_n_steps"]
+    assert set(summary["outcomes"]) == {"solved", "shifted_previous", "emergency_brake"}
