@@ -206,6 +206,7 @@ class LtvMpcQp:
         self._coef_pos = ineq_pos[coef_entries]
         self._inequality_lower = np.zeros(self.n_inequalities)
         self._safe_slack_idx = safe_slack_idx
+        self._col_slack_idx = col_slack_idx
 
         # --- variable boxes
         self.variable_lower = np.full(n, -np.inf)
@@ -447,9 +448,8 @@ class LtvMpcQp:
     def split_solution(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                      np.ndarray]:
         """(states (N + 1, 4), inputs (N, 2), collision slacks (V,), safety slacks (N, V))."""
-        layout = self.layout
-        return (z[self._state_idx], z[self._input_idx], z[layout.collision_slack_indices()],
-                z[layout.safety_slack_indices()])
+        return (z[self._state_idx], z[self._input_idx], z[self._col_slack_idx],
+                z[self._safe_slack_idx])
 
     def pack(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """z with the given states and inputs and zero slacks (e.g. a warm start)."""
@@ -460,10 +460,10 @@ class LtvMpcQp:
 
     def constraint_violation(self, z: np.ndarray) -> dict[str, float]:
         """Largest violation of each constraint group at z (0 when satisfied)."""
-        eq = np.abs(self._equality_matrix @ z - self._equality_rhs)
-        ineq = self._inequality_lower - self._inequality_matrix @ z
+        eq = np.abs(self.equality_matrix @ z - self.equality_rhs)
+        ineq = self.inequality_lower - self.inequality_matrix @ z
         lower = self.variable_lower - z
-        upper = z - self._variable_upper
+        upper = z - self.variable_upper
         return {
             "equality": float(eq.max(initial=0.0)),
             "inequality": float(np.maximum(ineq, 0.0).max(initial=0.0)),
@@ -474,4 +474,4 @@ class LtvMpcQp:
         """1/2 z^T P z + q^T z with P's stored upper triangle."""
         upper = self.cost_matrix
         quad = z @ (upper @ z) + z @ (upper.T @ z) - z @ (upper.diagonal() * z)
-        return 0.5 * float(quad) + float(self._cost_vector @ z)
+        return 0.5 * float(quad) + float(self.cost_vector @ z)

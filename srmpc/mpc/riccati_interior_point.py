@@ -58,9 +58,9 @@ STATUS_NAMES = {STATUS_SOLVED: "solved", STATUS_MAX_ITERATIONS: "max_iterations"
 
 FRACTION_TO_BOUNDARY = 0.995
 """Steps stop at this fraction of the distance to the boundary t = 0 or z = 0 (dimensionless)."""
-INITIAL_SLACK = 0.1
+INITIAL_SLACK = 1.0
 """Lower bound on the starting inequality slacks t_0 = max(a^T w_0 - b, .) (constraint units)."""
-INITIAL_MULTIPLIER = 10.0
+INITIAL_MULTIPLIER = 100.0
 """Starting inequality multipliers z_0 (objective units per constraint unit)."""
 INITIAL_INPUT_MARGIN = 0.01
 """The starting inputs keep this fraction of their box width from its bounds (dimensionless)."""
@@ -726,3 +726,17 @@ def solve_ltv_mpc_qp(measured_state, last_input, state_matrices, input_matrices,
                 t[i] += alpha_primal * dt[i]
                 z[i] += alpha_dual * dz[i]
     return STATUS_MAX_ITERATIONS, max_iterations
+
+
+@numba.njit(cache=True, error_model="numpy")
+def scatter_solution(states, inputs, slacks, sigmas, positions, z):
+    """z[positions] = (states, inputs, slacks, sigmas) flattened in that order (the QP's
+    variable layout); returns False if any value is not finite."""
+    index = 0
+    finite = True
+    for block in (states.ravel(), inputs.ravel(), slacks.ravel(), sigmas.ravel()):
+        for value in block:
+            z[positions[index]] = value
+            finite = finite and np.isfinite(value)
+            index += 1
+    return finite

@@ -24,9 +24,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from srmpc.mpc.qp_builder import LtvMpcQp
-from srmpc.mpc.riccati_interior_point import STATUS_NAMES, STATUS_SOLVED, solve_ltv_mpc_qp
+from srmpc.mpc.riccati_interior_point import (
+    STATUS_NAMES,
+    STATUS_SOLVED,
+    scatter_solution,
+    solve_ltv_mpc_qp,
+)
 
-DEFAULT_SOLVER = "piqp_native"
+DEFAULT_SOLVER = "riccati_ipm"
 
 # Tolerances: OSQP's default eps 1e-3 gives first-input errors up to ~1 (rad or m/s^2); 1e-5
 # is the loosest setting that keeps it within 1e-3 of Clarabel on this QP.
@@ -36,7 +41,7 @@ NATIVE_PIQP_TOLERANCE = INTERIOR_POINT_TOLERANCE
 """Fast path; at 1e-6 closed-loop first inputs drifted up to 2.3e-3 from Clarabel at 1e-9."""
 
 
-RICCATI_IPM_TOLERANCE = 1e-7
+RICCATI_IPM_TOLERANCE = 1e-8
 """Residual/complementarity tolerance of ``riccati_ipm`` (see ``riccati_interior_point``)."""
 RICCATI_IPM_MAX_ITERATIONS = 50
 
@@ -61,6 +66,9 @@ class QpSolution:
 
 
 class QpSolver(Protocol):
+    """A solver by name.  ``accepts_warm_start = False`` tells the planner not to build the
+    primal warm start (the planner assumes True when the attribute is missing)."""
+
     name: str
 
     def solve(self, qp: LtvMpcQp, warm_start: np.ndarray | None = None) -> QpSolution:
@@ -118,6 +126,7 @@ class PiqpNativeSolver:
     """PIQP sparse solver: set up once, then ``update`` values and re-solve."""
 
     name = "piqp_native"
+    accepts_warm_start = False
 
     def __init__(self, **settings) -> None:
         import piqp
@@ -226,6 +235,7 @@ class RiccatiInteriorPointSolver:
     """
 
     name = "riccati_ipm"
+    accepts_warm_start = False
 
     def __init__(self, tolerance: float = RICCATI_IPM_TOLERANCE,
                  max_iterations: int = RICCATI_IPM_MAX_ITERATIONS) -> None:
@@ -278,9 +288,8 @@ class RiccatiInteriorPointSolver:
         if status != STATUS_SOLVED:
             return QpSolution(False, STATUS_NAMES[status], None, int(iterations))
         z = np.empty(qp.n_variables)
-        z[self._scatter] = np.concatenate([self._states.ravel(), self._inputs.ravel(),
-                                           self._slacks, self._sigmas.ravel()])
-        if not np.all(np.isfinite(z)):
+        if not scatter_solution(self._states, self._inputs, self._slacks, self._sigmas,
+                                self._scatter, z):
             return QpSolution(False, "non-finite solution", None, int(iterations))
         return QpSolution(True, STATUS_NAMES[status], z, int(iterations))
 

@@ -119,22 +119,45 @@ def _substep_with_jacobians(state, steering, acceleration, h, half_length, v_max
 @numba.njit(cache=True)
 def _discrete_step_with_jacobians(state, control, h, n_substeps, half_length, v_max, v_min,
                                   out_state, transition_state_matrix, transition_input_matrix):
-    """Compose n_substeps sub-steps; accumulate A and B by the chain rule."""
-    current = state.copy()
+    """Compose n_substeps sub-steps; accumulate A and B by the chain rule.
+
+    Explicit loops on 4x4 blocks (no temporaries, no BLAS calls: this runs N times a step).
+    """
+    current = np.empty(4)
     nxt = np.empty(4)
     jx = np.empty((4, 4))
     ju = np.empty((4, 2))
-    a_acc = np.eye(4)
-    b_acc = np.zeros((4, 2))
+    product = np.empty((4, 4))
+    product_input = np.empty((4, 2))
+    for i in range(4):
+        current[i] = state[i]
+        for j in range(4):
+            transition_state_matrix[i, j] = 1.0 if i == j else 0.0
+        transition_input_matrix[i, 0] = 0.0
+        transition_input_matrix[i, 1] = 0.0
     for _ in range(n_substeps):
         _substep_with_jacobians(current, control[0], control[1], h, half_length, v_max, v_min,
                                 nxt, jx, ju)
-        a_acc = jx @ a_acc
-        b_acc = jx @ b_acc + ju
-        current[:] = nxt
-    out_state[:] = current
-    transition_state_matrix[:, :] = a_acc
-    transition_input_matrix[:, :] = b_acc
+        # A <- Jx A,  B <- Jx B + Ju
+        for i in range(4):
+            for j in range(4):
+                acc = 0.0
+                for t in range(4):
+                    acc += jx[i, t] * transition_state_matrix[t, j]
+                product[i, j] = acc
+            for j in range(2):
+                acc = ju[i, j]
+                for t in range(4):
+                    acc += jx[i, t] * transition_input_matrix[t, j]
+                product_input[i, j] = acc
+        for i in range(4):
+            for j in range(4):
+                transition_state_matrix[i, j] = product[i, j]
+            transition_input_matrix[i, 0] = product_input[i, 0]
+            transition_input_matrix[i, 1] = product_input[i, 1]
+            current[i] = nxt[i]
+    for i in range(4):
+        out_state[i] = current[i]
 
 
 @numba.njit(cache=True)
