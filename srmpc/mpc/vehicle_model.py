@@ -32,17 +32,25 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from srmpc.scenario.road import MAX_SPEED, VEHICLE_LENGTH, VEHICLE_WIDTH
+
 STATE_DIM = 4
 """(x [m], y [m], heading psi [rad], speed v [m/s])"""
 INPUT_DIM = 2
 """(steering delta [rad], acceleration a [m/s^2])"""
 
-VEHICLE_LENGTH_M = 5.0
-VEHICLE_WIDTH_M = 2.0
-MAX_SPEED_M_S = 40.0
-MIN_SPEED_M_S = -40.0
+VEHICLE_LENGTH_M = VEHICLE_LENGTH
+"""Ego length [m] (the scenario's, highway-env ``Vehicle.LENGTH``)."""
+VEHICLE_WIDTH_M = VEHICLE_WIDTH
+"""Ego width [m]."""
+MAX_SPEED_M_S = MAX_SPEED
+"""Speed above which the plant clips acceleration [m/s]."""
+MIN_SPEED_M_S = -MAX_SPEED
+"""Speed below which the plant clips acceleration [m/s] (highway-env: -MAX_SPEED)."""
 CONTROL_PERIOD_S = 0.2
+"""Control period dt [s] (policy frequency 5 Hz)."""
 SUBSTEPS_PER_CONTROL = 3
+"""Explicit-Euler plant sub-steps per control period (simulation frequency 15 Hz)."""
 
 
 @dataclass(frozen=True)
