@@ -82,8 +82,9 @@ class PlannerConfig:
 
     horizon_steps: int = 25
     """Prediction horizon N (25 x 0.2 s = 5 s)."""
-    solver: str = "piqp_native"
-    """QP solver: piqp_native (default fast path), osqp_native, or via qpsolvers osqp, clarabel, piqp, proxqp."""
+    solver: str = "riccati_ipm"
+    """QP solver: riccati_ipm (default, structure-exploiting interior point), piqp_native, osqp_native,
+    or via qpsolvers osqp, clarabel, piqp, proxqp."""
     max_vehicles: int = 6
     """Other-vehicle slots in the QP (the scenario observes at most 6)."""
     state_weights: list[float] = field(default_factory=lambda: [0.0, 0.5, 20.0, 0.5])

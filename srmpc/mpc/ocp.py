@@ -31,15 +31,20 @@ from srmpc.mpc.vehicle_model import (
     VEHICLE_WIDTH_M,
     BicycleParameters,
 )
+from srmpc.scenario.road import LANE_CENTERS, LANE_WIDTH, LEFT_ROAD_EDGE, RIGHT_ROAD_EDGE
 
-LANE_WIDTH_M = 4.0
-LANE_CENTRES_M = (0.0, 4.0, 8.0)
+LANE_WIDTH_M = float(LANE_WIDTH)
+"""Lane width [m] (``srmpc.scenario.road``)."""
+LANE_CENTRES_M = tuple(float(centre) for centre in LANE_CENTERS)
 """Lateral positions of the three lane centres [m]; y grows to the driver's right."""
-ROAD_LEFT_EDGE_M = -2.0
-ROAD_RIGHT_EDGE_M = 10.0
-REFERENCE_LATERAL_POSITION_M = 8.0
+ROAD_LEFT_EDGE_M = float(LEFT_ROAD_EDGE)
+"""Left road edge [m]."""
+ROAD_RIGHT_EDGE_M = float(RIGHT_ROAD_EDGE)
+"""Right road edge [m]."""
+REFERENCE_LATERAL_POSITION_M = LANE_CENTRES_M[-1]
 """Right-lane centre, the tracking target [m]."""
 REFERENCE_SPEED_M_S = 25.0
+"""Reference speed v_ref [m/s]."""
 
 
 @dataclass(frozen=True)

@@ -236,7 +236,8 @@ class LtvMpcPlanner:
                predicted) -> QpSolution:
         self.qp.update(ego_state, ref_states, ref_inputs, tracking_reference, last_input,
                        predicted)
-        warm_start = self.qp.pack(ref_states, ref_inputs)
+        warm_start = (self.qp.pack(ref_states, ref_inputs)
+                      if getattr(self.solver, "accepts_warm_start", True) else None)
         solve_start = time.perf_counter()
         solution = self.solver.solve(self.qp, warm_start)
         solution.solve_time_s = time.perf_counter() - solve_start
@@ -246,12 +247,14 @@ class LtvMpcPlanner:
         if not solution.solved or solution.z is None:
             return None
         states, inputs, collision_slacks, safety_slacks = self.qp.split_solution(solution.z)
-        first = inputs[0]
+        steering, acceleration = float(inputs[0, 0]), float(inputs[0, 1])
+        lower, upper = self._input_lower, self._input_upper
         if not (np.all(np.isfinite(solution.z))
-                and np.all(first >= self._input_lower - INPUT_BOUND_TOLERANCE)
-                and np.all(first <= self._input_upper + INPUT_BOUND_TOLERANCE)):
+                and lower[0] - INPUT_BOUND_TOLERANCE <= steering <= upper[0] + INPUT_BOUND_TOLERANCE
+                and lower[1] - INPUT_BOUND_TOLERANCE <= acceleration
+                <= upper[1] + INPUT_BOUND_TOLERANCE):
             return None
-        inputs = np.clip(inputs, self._input_lower, self._input_upper)
+        np.clip(inputs, lower, upper, out=inputs)
         return Plan(states, inputs, StepOutcome.SOLVED, source, solution.status,
                     solution.iterations, collision_slacks, safety_slacks)
 

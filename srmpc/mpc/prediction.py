@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Protocol
 
+import numba
 import numpy as np
 
 
@@ -27,16 +28,27 @@ class TrafficPredictor(Protocol):
         ...
 
 
+@numba.njit(cache=True)
+def _constant_velocity_rollout(others, horizon, control_period_s, predicted):
+    for j in range(others.shape[0]):
+        x, y, heading, speed = others[j, 0], others[j, 1], others[j, 2], others[j, 3]
+        velocity_x = speed * np.cos(heading)
+        velocity_y = speed * np.sin(heading)
+        for k in range(horizon + 1):
+            time_s = k * control_period_s
+            predicted[k, j, 0] = x + velocity_x * time_s
+            predicted[k, j, 1] = y + velocity_y * time_s
+            predicted[k, j, 2] = heading
+            predicted[k, j, 3] = speed
+
+
 def predict_constant_velocity(
     others: np.ndarray, horizon: int, control_period_s: float
 ) -> np.ndarray:
     """Constant-velocity, constant-heading prediction (see module doc); (N + 1, V, 4)."""
-    others = np.asarray(others, dtype=np.float64).reshape(-1, 4)
-    times_s = np.arange(horizon + 1)[:, None] * control_period_s
-    predicted = np.broadcast_to(others, (horizon + 1, *others.shape)).copy()
-    speed = others[:, 3]
-    predicted[:, :, 0] += times_s * (speed * np.cos(others[:, 2]))[None, :]
-    predicted[:, :, 1] += times_s * (speed * np.sin(others[:, 2]))[None, :]
+    others = np.ascontiguousarray(others, dtype=np.float64).reshape(-1, 4)
+    predicted = np.empty((horizon + 1, others.shape[0], 4))
+    _constant_velocity_rollout(others, int(horizon), float(control_period_s), predicted)
     return predicted
 
 

@@ -145,11 +145,19 @@ def csc_with_positions(
 class LtvMpcQp:
     """Holds the QP's fixed pattern and overwrites its values each step (see module doc).
 
-    Attributes (overwritten in place by ``update``):
+    Sparse forms (values written lazily, on first access after ``update``):
         cost_matrix (P, CSC upper triangle, constant), cost_vector (q),
         equality_matrix (E), equality_rhs (e), inequality_matrix (G), inequality_lower (h),
-        variable_lower, variable_upper (constant),
+        variable_lower (constant), variable_upper,
         general_matrix (A), general_lower (l), general_upper (u).
+
+    Stage-wise data (overwritten in place by ``update``; what structure-exploiting solvers
+    read, see ``riccati_interior_point``):
+        measured_state x_hat (4,), last_input u_hat (2,), tracking_reference x^ref (N + 1, 4),
+        linearization_inputs u^r (N, 2), state_matrices A_k (N, 4, 4),
+        input_matrices B_k (N, 4, 2), affine_offsets c_k (N, 4), next_states f(x^r_k, u^r_k),
+        collision_coefficients (N, V, 3) on (x, y, psi) of x_{k+1}, collision_row_lower h (N, V),
+        safety_slack_upper (N, V), n_observed V_obs (slots >= V_obs are empty).
     """
 
     def __init__(self, config: OcpConfig, model: KinematicBicycle | None = None) -> None:
@@ -178,12 +186,12 @@ class LtvMpcQp:
         a_entries = eq.add(rows_k[:, :, None], state_idx[:-1, None, :])
         b_entries = eq.add(rows_k[:, :, None], input_idx[:, None, :])
         self.n_equalities = STATE_DIM * (horizon + 1)
-        self.equality_matrix, eq_pos = eq.finalize((self.n_equalities, n))
-        self.equality_matrix.data[eq_pos[initial_entries]] = 1.0
-        self.equality_matrix.data[eq_pos[next_entries]] = 1.0
+        self._equality_matrix, eq_pos = eq.finalize((self.n_equalities, n))
+        self._equality_matrix.data[eq_pos[initial_entries]] = 1.0
+        self._equality_matrix.data[eq_pos[next_entries]] = 1.0
         self._a_pos = eq_pos[a_entries]  # (N, 4, 4)
         self._b_pos = eq_pos[b_entries]  # (N, 4, 2)
-        self.equality_rhs = np.zeros(self.n_equalities)
+        self._equality_rhs = np.zeros(self.n_equalities)
 
         # --- inequality rows: one per stage k >= 1 and vehicle slot j
         rows = np.arange(horizon)[:, None] * n_slots + np.arange(n_slots)[None, :]  # (N, V)
@@ -192,53 +200,54 @@ class LtvMpcQp:
         col_slack_entries = ineq.add(rows, col_slack_idx[None, :])
         safe_slack_entries = ineq.add(rows, safe_slack_idx)
         self.n_inequalities = horizon * n_slots
-        self.inequality_matrix, ineq_pos = ineq.finalize((self.n_inequalities, n))
-        self.inequality_matrix.data[ineq_pos[col_slack_entries]] = 1.0
-        self.inequality_matrix.data[ineq_pos[safe_slack_entries]] = 1.0
+        self._inequality_matrix, ineq_pos = ineq.finalize((self.n_inequalities, n))
+        self._inequality_matrix.data[ineq_pos[col_slack_entries]] = 1.0
+        self._inequality_matrix.data[ineq_pos[safe_slack_entries]] = 1.0
         self._coef_pos = ineq_pos[coef_entries]
-        self.inequality_lower = np.zeros(self.n_inequalities)
+        self._inequality_lower = np.zeros(self.n_inequalities)
         self._safe_slack_idx = safe_slack_idx
+        self._col_slack_idx = col_slack_idx
 
         # --- variable boxes
         self.variable_lower = np.full(n, -np.inf)
-        self.variable_upper = np.full(n, np.inf)
+        self._variable_upper = np.full(n, np.inf)
         self.variable_lower[state_idx[1:, _LATERAL]] = config.lateral_bounds_m[0]
-        self.variable_upper[state_idx[1:, _LATERAL]] = config.lateral_bounds_m[1]
+        self._variable_upper[state_idx[1:, _LATERAL]] = config.lateral_bounds_m[1]
         self.variable_lower[state_idx[1:, _SPEED]] = config.speed_bounds_m_s[0]
-        self.variable_upper[state_idx[1:, _SPEED]] = config.speed_bounds_m_s[1]
+        self._variable_upper[state_idx[1:, _SPEED]] = config.speed_bounds_m_s[1]
         self.variable_lower[input_idx[:, 0]] = config.steering_bounds_rad[0]
-        self.variable_upper[input_idx[:, 0]] = config.steering_bounds_rad[1]
+        self._variable_upper[input_idx[:, 0]] = config.steering_bounds_rad[1]
         self.variable_lower[input_idx[:, 1]] = config.acceleration_bounds_m_s2[0]
-        self.variable_upper[input_idx[:, 1]] = config.acceleration_bounds_m_s2[1]
+        self._variable_upper[input_idx[:, 1]] = config.acceleration_bounds_m_s2[1]
         self.variable_lower[col_slack_idx] = 0.0
         self.variable_lower[safe_slack_idx] = 0.0
-        self.variable_upper[safe_slack_idx] = 0.0  # set per step to h'(n) - 1
+        self._variable_upper[safe_slack_idx] = 0.0  # set per step to h'(n) - 1
 
         # --- cost
         self._build_cost(col_slack_idx, safe_slack_idx)
 
         # --- general form A = [E; G; I_box]
-        boxed = np.flatnonzero(np.isfinite(self.variable_lower) | np.isfinite(self.variable_upper))
+        boxed = np.flatnonzero(np.isfinite(self.variable_lower) | np.isfinite(self._variable_upper))
         self.boxed_variables = boxed
-        eq_coo = self.equality_matrix.tocoo()
-        ineq_coo = self.inequality_matrix.tocoo()
+        eq_coo = self._equality_matrix.tocoo()
+        ineq_coo = self._inequality_matrix.tocoo()
         # tocoo of a canonical CSC enumerates data in storage order
         rows = np.concatenate([eq_coo.row, ineq_coo.row + self.n_equalities,
                                self.n_equalities + self.n_inequalities + np.arange(boxed.size)])
         cols = np.concatenate([eq_coo.col, ineq_coo.col, boxed])
         n_rows = self.n_equalities + self.n_inequalities + boxed.size
-        self.general_matrix, gen_pos = csc_with_positions(rows, cols, (n_rows, n))
-        n_eq_nnz = self.equality_matrix.nnz
-        n_ineq_nnz = self.inequality_matrix.nnz
+        self._general_matrix, gen_pos = csc_with_positions(rows, cols, (n_rows, n))
+        n_eq_nnz = self._equality_matrix.nnz
+        n_ineq_nnz = self._inequality_matrix.nnz
         self._gen_from_eq = gen_pos[:n_eq_nnz]
         self._gen_from_ineq = gen_pos[n_eq_nnz:n_eq_nnz + n_ineq_nnz]
-        self.general_matrix.data[gen_pos[n_eq_nnz + n_ineq_nnz:]] = 1.0
-        self.general_lower = np.empty(n_rows)
-        self.general_upper = np.empty(n_rows)
+        self._general_matrix.data[gen_pos[n_eq_nnz + n_ineq_nnz:]] = 1.0
+        self._general_lower = np.empty(n_rows)
+        self._general_upper = np.empty(n_rows)
         box_rows = slice(self.n_equalities + self.n_inequalities, n_rows)
-        self.general_lower[box_rows] = self.variable_lower[boxed]
-        self.general_upper[box_rows] = self.variable_upper[boxed]
-        self.general_upper[self.n_equalities:self.n_equalities + self.n_inequalities] = np.inf
+        self._general_lower[box_rows] = self.variable_lower[boxed]
+        self._general_upper[box_rows] = self._variable_upper[boxed]
+        self._general_upper[self.n_equalities:self.n_equalities + self.n_inequalities] = np.inf
         box_row_of_variable = np.full(n, -1)
         box_row_of_variable[boxed] = self.n_equalities + self.n_inequalities + np.arange(
             boxed.size)
@@ -263,16 +272,22 @@ class LtvMpcQp:
         row_shift[box_rows] = box_row_of_variable[variable_shift[boxed]]
         self.general_row_shift = row_shift
 
-        # --- work buffers
-        self._next_states = np.empty((horizon, STATE_DIM))
-        self._state_matrices = np.empty((horizon, STATE_DIM, STATE_DIM))
-        self._input_matrices = np.empty((horizon, STATE_DIM, INPUT_DIM))
-        self._affine_offsets = np.empty((horizon, STATE_DIM))
-        self._coefficients = np.empty((horizon, n_slots, 3))
-        self._row_lower = np.empty((horizon, n_slots))
-        self._safety_slack_upper = np.empty((horizon, n_slots))
+        # --- stage-wise data of the last update (see class doc)
+        self.next_states = np.zeros((horizon, STATE_DIM))
+        self.state_matrices = np.zeros((horizon, STATE_DIM, STATE_DIM))
+        self.input_matrices = np.zeros((horizon, STATE_DIM, INPUT_DIM))
+        self.affine_offsets = np.zeros((horizon, STATE_DIM))
+        self.collision_coefficients = np.zeros((horizon, n_slots, 3))
+        self.collision_row_lower = np.zeros((horizon, n_slots))
+        self.safety_slack_upper = np.zeros((horizon, n_slots))
         self.critical_circle = np.zeros((horizon, n_slots), dtype=np.int64)
         self._empty_prediction = np.zeros((horizon + 1, 1, 4))
+        self.n_observed = 0
+        self.measured_state = np.zeros(STATE_DIM)
+        self.last_input = np.zeros(INPUT_DIM)
+        self.tracking_reference = np.zeros((horizon + 1, STATE_DIM))
+        self.linearization_inputs = np.zeros((horizon, INPUT_DIM))
+        self._sparse_values_stale = False
 
     def _build_cost(self, col_slack_idx: np.ndarray, safe_slack_idx: np.ndarray) -> None:
         config = self.config
@@ -305,9 +320,9 @@ class LtvMpcQp:
         r, c = np.concatenate(rows), np.concatenate(cols)
         self.cost_matrix, positions = csc_with_positions(r, c, (n, n))
         self.cost_matrix.data[positions] = np.concatenate(values)
-        self.cost_vector = np.zeros(n)
-        self.cost_vector[col_slack_idx] = weights.collision_slack_linear
-        self.cost_vector[safe_slack_idx] = weights.safety_slack_linear
+        self._cost_vector = np.zeros(n)
+        self._cost_vector[col_slack_idx] = weights.collision_slack_linear
+        self._cost_vector[safe_slack_idx] = weights.safety_slack_linear
         self._two_q = 2.0 * state_weight
         self._two_s = 2.0 * rate_weight
 
@@ -336,14 +351,8 @@ class LtvMpcQp:
         """
         lin_states = np.ascontiguousarray(linearization_states, dtype=np.float64)
         lin_inputs = np.ascontiguousarray(linearization_inputs, dtype=np.float64)
-        self.model.linearize(lin_states, lin_inputs, self._next_states, self._state_matrices,
-                             self._input_matrices, self._affine_offsets)
-        eq_data = self.equality_matrix.data
-        eq_data[self._a_pos] = -self._state_matrices
-        eq_data[self._b_pos] = -self._input_matrices
-        self.equality_rhs[:STATE_DIM] = measured_state
-        self.equality_rhs[STATE_DIM:] = self._affine_offsets.ravel()
-
+        self.model.linearize(lin_states, lin_inputs, self.next_states, self.state_matrices,
+                             self.input_matrices, self.affine_offsets)
         if predicted_others.shape[1] > self.config.max_vehicles:
             raise ValueError(
                 f"{predicted_others.shape[1]} vehicles exceed max_vehicles="
@@ -354,30 +363,93 @@ class LtvMpcQp:
         linearize_collision_constraints(
             lin_states, np.ascontiguousarray(predicted_others, dtype=np.float64), n_observed,
             self.circle_offsets, self.collision_semi_axes, self.safety_semi_axes,
-            self._coefficients, self._row_lower, self._safety_slack_upper,
+            self.collision_coefficients, self.collision_row_lower, self.safety_slack_upper,
             self.critical_circle)
-        ineq_data = self.inequality_matrix.data
-        ineq_data[self._coef_pos] = self._coefficients
-        self.inequality_lower[:] = self._row_lower.ravel()
-        self.variable_upper[self._safe_slack_idx] = self._safety_slack_upper
-        self.general_upper[self._safe_slack_box_rows] = self._safety_slack_upper
+        self.n_observed = n_observed
+        self.measured_state[:] = measured_state
+        self.last_input[:] = last_input
+        self.tracking_reference[:] = tracking_reference
+        self.linearization_inputs[:] = lin_inputs
+        self._sparse_values_stale = True
 
-        self.cost_vector[self._state_idx[1:]] = -self._two_q * tracking_reference[1:]
-        self.cost_vector[self._input_idx[0]] = -self._two_s * np.asarray(last_input)
+    def _sync_sparse_values(self) -> None:
+        """Write the stage-wise data of the last ``update`` into the sparse forms' values."""
+        if not self._sparse_values_stale:
+            return
+        self._sparse_values_stale = False
+        eq_data = self._equality_matrix.data
+        eq_data[self._a_pos] = -self.state_matrices
+        eq_data[self._b_pos] = -self.input_matrices
+        self._equality_rhs[:STATE_DIM] = self.measured_state
+        self._equality_rhs[STATE_DIM:] = self.affine_offsets.ravel()
+        ineq_data = self._inequality_matrix.data
+        ineq_data[self._coef_pos] = self.collision_coefficients
+        self._inequality_lower[:] = self.collision_row_lower.ravel()
+        self._variable_upper[self._safe_slack_idx] = self.safety_slack_upper
+        self._general_upper[self._safe_slack_box_rows] = self.safety_slack_upper
 
-        self.general_matrix.data[self._gen_from_eq] = eq_data
-        self.general_matrix.data[self._gen_from_ineq] = ineq_data
-        self.general_lower[:self.n_equalities] = self.equality_rhs
-        self.general_upper[:self.n_equalities] = self.equality_rhs
-        self.general_lower[self.n_equalities:self.n_equalities + self.n_inequalities] = (
-            self.inequality_lower)
+        self._cost_vector[self._state_idx[1:]] = -self._two_q * self.tracking_reference[1:]
+        self._cost_vector[self._input_idx[0]] = -self._two_s * self.last_input
+
+        self._general_matrix.data[self._gen_from_eq] = eq_data
+        self._general_matrix.data[self._gen_from_ineq] = ineq_data
+        self._general_lower[:self.n_equalities] = self._equality_rhs
+        self._general_upper[:self.n_equalities] = self._equality_rhs
+        self._general_lower[self.n_equalities:self.n_equalities + self.n_inequalities] = (
+            self._inequality_lower)
+
+    # Sparse forms: values are written on first access after an ``update`` (solvers that
+    # work on the stage-wise data never pay for them).
+    @property
+    def equality_matrix(self) -> sp.csc_matrix:
+        self._sync_sparse_values()
+        return self._equality_matrix
+
+    @property
+    def equality_rhs(self) -> np.ndarray:
+        self._sync_sparse_values()
+        return self._equality_rhs
+
+    @property
+    def inequality_matrix(self) -> sp.csc_matrix:
+        self._sync_sparse_values()
+        return self._inequality_matrix
+
+    @property
+    def inequality_lower(self) -> np.ndarray:
+        self._sync_sparse_values()
+        return self._inequality_lower
+
+    @property
+    def variable_upper(self) -> np.ndarray:
+        self._sync_sparse_values()
+        return self._variable_upper
+
+    @property
+    def general_matrix(self) -> sp.csc_matrix:
+        self._sync_sparse_values()
+        return self._general_matrix
+
+    @property
+    def general_lower(self) -> np.ndarray:
+        self._sync_sparse_values()
+        return self._general_lower
+
+    @property
+    def general_upper(self) -> np.ndarray:
+        self._sync_sparse_values()
+        return self._general_upper
+
+    @property
+    def cost_vector(self) -> np.ndarray:
+        self._sync_sparse_values()
+        return self._cost_vector
 
     def split_solution(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                      np.ndarray]:
         """(states (N + 1, 4), inputs (N, 2), collision slacks (V,), safety slacks (N, V))."""
-        layout = self.layout
-        return (z[self._state_idx], z[self._input_idx], z[layout.collision_slack_indices()],
-                z[layout.safety_slack_indices()])
+        return (z[self._state_idx], z[self._input_idx], z[self._col_slack_idx],
+                z[self._safe_slack_idx])
 
     def pack(self, states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """z with the given states and inputs and zero slacks (e.g. a warm start)."""

@@ -8,6 +8,8 @@ Two kinds:
 - native fast paths (``piqp_native``, ``osqp_native``): the solver is set up once with the fixed
   sparsity pattern; each step only overwrites values with the library's ``update`` and re-solves
   (warm-started for OSQP).  PIQP gets real +-inf for absent bounds.
+- ``riccati_ipm``: our structure-exploiting interior-point method (``riccati_interior_point``),
+  which reads the QP's stage-wise data and never touches the sparse matrices.
 
 ``make_solver(name, **settings)`` raises ``ValueError`` listing the available names for an
 unknown name (at configuration time, before any episode).
@@ -22,8 +24,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.riccati_interior_point import (
+    STATUS_NAMES,
+    STATUS_SOLVED,
+    scatter_solution,
+    solve_ltv_mpc_qp,
+)
 
-DEFAULT_SOLVER = "piqp_native"
+DEFAULT_SOLVER = "riccati_ipm"
 
 # Tolerances: OSQP's default eps 1e-3 gives first-input errors up to ~1 (rad or m/s^2); 1e-5
 # is the loosest setting that keeps it within 1e-3 of Clarabel on this QP.
@@ -31,6 +39,11 @@ OSQP_TOLERANCE = 1e-5
 INTERIOR_POINT_TOLERANCE = 1e-7
 NATIVE_PIQP_TOLERANCE = INTERIOR_POINT_TOLERANCE
 """Fast path; at 1e-6 closed-loop first inputs drifted up to 2.3e-3 from Clarabel at 1e-9."""
+
+
+RICCATI_IPM_TOLERANCE = 1e-8
+"""Residual/complementarity tolerance of ``riccati_ipm`` (see ``riccati_interior_point``)."""
+RICCATI_IPM_MAX_ITERATIONS = 50
 
 
 @dataclass
@@ -53,6 +66,9 @@ class QpSolution:
 
 
 class QpSolver(Protocol):
+    """A solver by name.  ``accepts_warm_start = False`` tells the planner not to build the
+    primal warm start (the planner assumes True when the attribute is missing)."""
+
     name: str
 
     def solve(self, qp: LtvMpcQp, warm_start: np.ndarray | None = None) -> QpSolution:
@@ -110,6 +126,7 @@ class PiqpNativeSolver:
     """PIQP sparse solver: set up once, then ``update`` values and re-solve."""
 
     name = "piqp_native"
+    accepts_warm_start = False
 
     def __init__(self, **settings) -> None:
         import piqp
@@ -209,6 +226,74 @@ class OsqpNativeSolver:
         return QpSolution(solved, str(result.info.status), z, int(result.info.iter))
 
 
+class RiccatiInteriorPointSolver:
+    """``riccati_interior_point.solve_ltv_mpc_qp`` on the QP's stage-wise data.
+
+    Starts from the linearization inputs (clipped into their box) rolled out through the
+    linearized dynamics; no warm start of the multipliers (interior-point methods gain little).
+    Any status other than solved is a failed solve (the planner's fallback chain takes over).
+    """
+
+    name = "riccati_ipm"
+    accepts_warm_start = False
+
+    def __init__(self, tolerance: float = RICCATI_IPM_TOLERANCE,
+                 max_iterations: int = RICCATI_IPM_MAX_ITERATIONS) -> None:
+        self.tolerance = float(tolerance)
+        self.max_iterations = int(max_iterations)
+        self._constants_for: LtvMpcQp | None = None
+
+    def reset(self) -> None:
+        pass
+
+    def _prepare(self, qp: LtvMpcQp) -> None:
+        config = qp.config
+        weights = config.weights
+        horizon, n_slots = config.horizon, config.max_vehicles
+        self._state_weight_hessian = 2.0 * np.asarray(weights.state, dtype=np.float64)
+        self._input_weight_hessian = 2.0 * np.asarray(weights.input, dtype=np.float64)
+        self._rate_hessian = 2.0 * np.asarray(weights.input_rate, dtype=np.float64)
+        self._slack_weights = np.array([weights.collision_slack_linear,
+                                        weights.collision_slack_quadratic,
+                                        weights.safety_slack_linear,
+                                        weights.safety_slack_quadratic], dtype=np.float64)
+        self._bounds = np.array([*config.lateral_bounds_m, *config.speed_bounds_m_s,
+                                 config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0],
+                                 config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]],
+                                dtype=np.float64)
+        self._states = np.empty((horizon + 1, 4))
+        self._inputs = np.empty((horizon, 2))
+        self._slacks = np.empty(n_slots)
+        self._sigmas = np.empty((horizon, n_slots))
+        layout = qp.layout
+        self._scatter = np.concatenate([layout.state_indices().ravel(),
+                                        layout.input_indices().ravel(),
+                                        layout.collision_slack_indices(),
+                                        layout.safety_slack_indices().ravel()])
+        self._constants_for = qp
+
+    def solve(self, qp: LtvMpcQp, warm_start: np.ndarray | None = None) -> QpSolution:
+        if self._constants_for is not qp:
+            self._prepare(qp)
+        try:
+            status, iterations = solve_ltv_mpc_qp(
+                qp.measured_state, qp.last_input, qp.state_matrices, qp.input_matrices,
+                qp.affine_offsets, qp.tracking_reference, qp.collision_coefficients,
+                qp.collision_row_lower, qp.safety_slack_upper, qp.n_observed,
+                self._state_weight_hessian, self._input_weight_hessian, self._rate_hessian,
+                self._slack_weights, self._bounds, qp.linearization_inputs, self.tolerance,
+                self.max_iterations, self._states, self._inputs, self._slacks, self._sigmas)
+        except Exception as error:  # noqa: BLE001 -- a crashed solve is a failed solve
+            return QpSolution(False, f"exception: {error!r}", None)
+        if status != STATUS_SOLVED:
+            return QpSolution(False, STATUS_NAMES[status], None, int(iterations))
+        z = np.empty(qp.n_variables)
+        if not scatter_solution(self._states, self._inputs, self._slacks, self._sigmas,
+                                self._scatter, z):
+            return QpSolution(False, "non-finite solution", None, int(iterations))
+        return QpSolution(True, STATUS_NAMES[status], z, int(iterations))
+
+
 def _qpsolvers_osqp(**settings) -> QpsolversSolver:
     return QpsolversSolver("osqp", eps_abs=OSQP_TOLERANCE, eps_rel=OSQP_TOLERANCE,
                            polishing=False, max_iter=20000, **settings)
@@ -229,6 +314,7 @@ def _qpsolvers_proxqp(**settings) -> QpsolversSolver:
 
 
 SOLVER_FACTORIES = {
+    "riccati_ipm": RiccatiInteriorPointSolver,
     "piqp_native": PiqpNativeSolver,
     "osqp_native": OsqpNativeSolver,
     "osqp": _qpsolvers_osqp,
@@ -236,7 +322,7 @@ SOLVER_FACTORIES = {
     "piqp": _qpsolvers_piqp,
     "proxqp": _qpsolvers_proxqp,
 }
-"""The solver-name table: native fast paths, then qpsolvers backends."""
+"""The solver-name table: our structured solver, native fast paths, then qpsolvers backends."""
 
 
 def available_solvers() -> list[str]:

@@ -32,17 +32,25 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from srmpc.scenario.road import MAX_SPEED, VEHICLE_LENGTH, VEHICLE_WIDTH
+
 STATE_DIM = 4
 """(x [m], y [m], heading psi [rad], speed v [m/s])"""
 INPUT_DIM = 2
 """(steering delta [rad], acceleration a [m/s^2])"""
 
-VEHICLE_LENGTH_M = 5.0
-VEHICLE_WIDTH_M = 2.0
-MAX_SPEED_M_S = 40.0
-MIN_SPEED_M_S = -40.0
+VEHICLE_LENGTH_M = VEHICLE_LENGTH
+"""Ego length [m] (the scenario's, highway-env ``Vehicle.LENGTH``)."""
+VEHICLE_WIDTH_M = VEHICLE_WIDTH
+"""Ego width [m]."""
+MAX_SPEED_M_S = MAX_SPEED
+"""Speed above which the plant clips acceleration [m/s]."""
+MIN_SPEED_M_S = -MAX_SPEED
+"""Speed below which the plant clips acceleration [m/s] (highway-env: -MAX_SPEED)."""
 CONTROL_PERIOD_S = 0.2
+"""Control period dt [s] (policy frequency 5 Hz)."""
 SUBSTEPS_PER_CONTROL = 3
+"""Explicit-Euler plant sub-steps per control period (simulation frequency 15 Hz)."""
 
 
 @dataclass(frozen=True)
@@ -119,22 +127,45 @@ def _substep_with_jacobians(state, steering, acceleration, h, half_length, v_max
 @numba.njit(cache=True)
 def _discrete_step_with_jacobians(state, control, h, n_substeps, half_length, v_max, v_min,
                                   out_state, transition_state_matrix, transition_input_matrix):
-    """Compose n_substeps sub-steps; accumulate A and B by the chain rule."""
-    current = state.copy()
+    """Compose n_substeps sub-steps; accumulate A and B by the chain rule.
+
+    Explicit loops on 4x4 blocks (no temporaries, no BLAS calls: this runs N times a step).
+    """
+    current = np.empty(4)
     nxt = np.empty(4)
     jx = np.empty((4, 4))
     ju = np.empty((4, 2))
-    a_acc = np.eye(4)
-    b_acc = np.zeros((4, 2))
+    product = np.empty((4, 4))
+    product_input = np.empty((4, 2))
+    for i in range(4):
+        current[i] = state[i]
+        for j in range(4):
+            transition_state_matrix[i, j] = 1.0 if i == j else 0.0
+        transition_input_matrix[i, 0] = 0.0
+        transition_input_matrix[i, 1] = 0.0
     for _ in range(n_substeps):
         _substep_with_jacobians(current, control[0], control[1], h, half_length, v_max, v_min,
                                 nxt, jx, ju)
-        a_acc = jx @ a_acc
-        b_acc = jx @ b_acc + ju
-        current[:] = nxt
-    out_state[:] = current
-    transition_state_matrix[:, :] = a_acc
-    transition_input_matrix[:, :] = b_acc
+        # A <- Jx A,  B <- Jx B + Ju
+        for i in range(4):
+            for j in range(4):
+                acc = 0.0
+                for t in range(4):
+                    acc += jx[i, t] * transition_state_matrix[t, j]
+                product[i, j] = acc
+            for j in range(2):
+                acc = ju[i, j]
+                for t in range(4):
+                    acc += jx[i, t] * transition_input_matrix[t, j]
+                product_input[i, j] = acc
+        for i in range(4):
+            for j in range(4):
+                transition_state_matrix[i, j] = product[i, j]
+            transition_input_matrix[i, 0] = product_input[i, 0]
+            transition_input_matrix[i, 1] = product_input[i, 1]
+            current[i] = nxt[i]
+    for i in range(4):
+        out_state[i] = current[i]
 
 
 @numba.njit(cache=True)

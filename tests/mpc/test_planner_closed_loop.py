@@ -14,7 +14,7 @@ class FailingAfter:
     name = "failing"
 
     def __init__(self, first_failure: int) -> None:
-        self.inner = make_solver("piqp_native")
+        self.inner = make_solver("riccati_ipm")
         self.first_failure = first_failure
         self.calls = 0
 

@@ -57,14 +57,14 @@ def test_all_solvers_agree_on_first_input(loaded_qp):
     reference = make_solver("clarabel").solve(qp)
     assert reference.solved
     u0_reference = qp.split_solution(reference.z)[1][0]
-    for name in ("osqp", "piqp", "proxqp", "piqp_native", "osqp_native"):
+    for name in ("osqp", "piqp", "proxqp", "piqp_native", "osqp_native", "riccati_ipm"):
         solution = make_solver(name).solve(qp)
         assert solution.solved, name
         u0 = qp.split_solution(solution.z)[1][0]
         assert np.max(np.abs(u0 - u0_reference)) < 1e-3, name
 
 
-@pytest.mark.parametrize("name", ["piqp_native", "clarabel", "osqp_native"])
+@pytest.mark.parametrize("name", ["riccati_ipm", "piqp_native", "clarabel", "osqp_native"])
 def test_constraints_hold_at_solution(loaded_qp, six_vehicles, name):
     qp = loaded_qp
     solution = make_solver(name).solve(qp)
