@@ -8,11 +8,21 @@ multiplier, and the batch layout is chosen for a 2-core CPU with the batched sim
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 
 
 def _check(condition: bool, key: str, value: object, expectation: str) -> None:
     if not condition:
         raise ValueError(f"{key}={value!r}: {expectation}")
+
+
+class TrainTask(Enum):
+    """What the agent trains on."""
+
+    twin_highway = "twin_highway"
+    """The batched highway simulator srmpc.sim.torchrl_env.TwinHighwayEnv (the paper's task)."""
+    toy = "toy"
+    """srmpc.agents.toy_env.ToyConstrainedEnv: a seconds-long smoke task with the same keys."""
 
 
 @dataclass
@@ -72,8 +82,14 @@ class PPOHyperparameters:
     """Iterations between checkpoints (the last one is also written at the end and on SIGTERM)."""
     seed: int = 0
     """Seed of torch, the simulator and the minibatch shuffling."""
-    num_threads: int = 2
-    """torch intra-op threads."""
+    num_threads: int = 1
+    """torch intra-op threads. 1: 2x64 MLPs gain nothing from more, and on a shared 2-core machine two
+    spinning OpenMP threads made iterations 10-20x slower (measured) when the other core was busy."""
+    task: TrainTask = TrainTask.twin_highway
+    """Environment to train on (``toy`` only for smoke runs)."""
+    output_dir: str | None = None
+    """Checkpoints, policy.pt, metrics.csv, summary.json; null means results/training/<name>. Rerunning
+    with a checkpoint there resumes it (the agent and scenario config must be the same)."""
 
     def __post_init__(self) -> None:
         _check(self.num_envs > 0, "num_envs", self.num_envs, "must be > 0")
