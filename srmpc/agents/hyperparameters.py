@@ -52,10 +52,13 @@ class PPOHyperparameters:
     """Adam learning rate of the actor."""
     critic_lr: float = 1e-3
     """Adam learning rate of the reward and cost critics."""
-    multiplier_lr: float = 1e-4
-    """Adam learning rate of lambda(s): slower than the actor (two-timescale dual ascent)."""
-    multiplier_update_every: int = 5
-    """lambda(s) takes one epoch of steps every this many iterations (FAC: dual ascent every 12 updates)."""
+    multiplier_lr: float = 1e-3
+    """Adam learning rate of lambda(s). With Adam the output of a 2x64 net moves by up to ~65 x lr per
+    step, so 1e-3 lets lambda(s) cross [0, 50] within a few hundred iterations."""
+    multiplier_update_every: int = 1
+    """lambda(s) takes one epoch of minibatch steps (the first) every this many iterations, while the
+    actor and critics take ``epochs`` of them: the slower timescale of the dual ascent (FAC: dual
+    ascent every 12 updates)."""
     lambda_max: float = 50.0
     """Cap of lambda(s): the paper's numerical 'infinite' multiplier (Ma et al. clip at 50)."""
     initial_lambda: float = 1.0

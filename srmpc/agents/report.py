@@ -27,7 +27,8 @@ def summarize_training(rows: list[dict[str, float]], last_fraction: float = 0.05
     summary = {"frames": int(final_frames), "wall_s": rows[-1]["wall_s"], "iterations": len(rows),
                "last_fraction": last_fraction}
     episodes = sum(r["episodes"] for r in tail if r["episodes"] > 0)
-    for key, column in (("return", "episode/return"), ("cost_return", "episode/cost_return"),
+    for key, column in (("return", "episode/return"), ("train_return", "episode/train_return"),
+                        ("cost_return", "episode/cost_return"),
                         ("si_cost_return", "episode/si_cost_return"), ("steps", "episode/steps"),
                         ("vx", "episode/vx")):
         weighted = sum(r[column] * r["episodes"] for r in tail if r["episodes"] > 0)

@@ -82,7 +82,9 @@ class EpisodeTracker:
     total_event_cost: float = 0.0
     total_steps: int = 0
 
-    KEYS = ("return", "cost_return", "si_cost_return", "steps", "vx_sum")
+    KEYS = ("return", "train_return", "cost_return", "si_cost_return", "steps", "vx_sum")
+    """return: sum of r' (the paper's J_r); train_return: sum of the training reward r; cost_return: sum
+    of event costs (the paper's J_c); si_cost_return: sum of the SI cost c; steps; vx_sum -> mean vx."""
 
     def __post_init__(self) -> None:
         if not self.sums:
@@ -92,7 +94,7 @@ class EpisodeTracker:
         """Consume a (B, T) batch; return the episodes that ended in it."""
         nxt = batch.get("next")
         columns = {
-            "return": nxt.get("reward_prime"), "cost_return": nxt.get("event_cost"),
+            "return": nxt.get("reward_prime"), "train_return": nxt.get("reward"), "cost_return": nxt.get("event_cost"),
             "si_cost_return": nxt.get("cost"), "steps": torch.ones_like(nxt.get("reward_prime")),
             "vx_sum": nxt.get("vx"),
         }
@@ -308,13 +310,14 @@ class Trainer:
             "step/vx": float(nxt.get("vx").mean()), "episodes": float(len(ended)),
         }
         if ended:
-            for key in ("return", "cost_return", "si_cost_return", "steps", "vx"):
+            for key in ("return", "train_return", "cost_return", "si_cost_return", "steps", "vx"):
                 metrics[f"episode/{key}"] = sum(e[key] for e in ended) / len(ended)
         metrics.update({f"train/{k}": v for k, v in losses.items()})
         return metrics
 
-    CSV_COLUMNS = ("iteration", "frames", "wall_s", "episodes", "episode/return", "episode/cost_return",
-                   "episode/si_cost_return", "episode/steps", "episode/vx", "cost_rate", "env_steps_per_s")
+    CSV_COLUMNS = ("iteration", "frames", "wall_s", "episodes", "episode/return", "episode/train_return",
+                   "episode/cost_return",
+                   "episode/si_cost_return", "episode/steps", "episode/vx", "cost_rate", "step/reward", "env_steps_per_s")
 
     def _truncate_csv(self, path: Path) -> None:
         """Keep the rows up to the resumed iteration (a crash may have left later ones)."""
