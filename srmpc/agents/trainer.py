@@ -316,8 +316,8 @@ class Trainer:
         return metrics
 
     CSV_COLUMNS = ("iteration", "frames", "wall_s", "episodes", "episode/return", "episode/train_return",
-                   "episode/cost_return",
-                   "episode/si_cost_return", "episode/steps", "episode/vx", "cost_rate", "step/reward", "env_steps_per_s")
+                   "episode/cost_return", "episode/si_cost_return", "episode/steps", "episode/vx", "cost_rate",
+                   "step/reward", "env_steps_per_s")
 
     def _truncate_csv(self, path: Path) -> None:
         """Keep the rows up to the resumed iteration (a crash may have left later ones)."""
