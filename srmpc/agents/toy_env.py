@@ -34,6 +34,8 @@ DT = 0.2
 class ToyConstrainedEnv(EnvBase):
     """Batched point-mass task with a hazard disk; see the module docstring."""
 
+    max_steps = MAX_STEPS
+
     def __init__(self, num_envs: int, seed: int = 0, device: str = "cpu") -> None:
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         b = num_envs
