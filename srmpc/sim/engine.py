@@ -32,7 +32,7 @@ from srmpc.scenario.reward import reward_prime, training_reward
 from srmpc.scenario.safety_index import safety_index, safety_index_cost
 from srmpc.sim.collision import handle_collisions
 from srmpc.sim.constants import MAX_STEERING_ANGLE, TERMINATION_COLLISION, TERMINATION_NONE, TERMINATION_OFFROAD
-from srmpc.sim.idm import clip_idm_acceleration, idm_acceleration, leader, steering_control
+from srmpc.sim.idm import all_leaders, clip_idm_acceleration, idm_acceleration, steering_control
 from srmpc.sim.spawning import spawn_scene
 from srmpc.sim.state import ACCELERATION, HEADING, SPEED, STEERING, X, Y
 from srmpc.sim.vehicle import ego_control, integrate, on_lane
@@ -116,6 +116,8 @@ def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
     pair_keys = np.empty(n * (n - 1) // 2 + 1, dtype=np.int64)
     poly_a = np.empty((5, 2))
     poly_b = np.empty((5, 2))
+    lane_leader = np.empty(n, dtype=np.int64)
+    target_leader = np.empty(n, dtype=np.int64)
     road_ranks(s.ego_rank[b], n, rank)
     held_steering, held_acceleration = ego_control(
         steering, acceleration, c.steering_max, c.acceleration_min, c.acceleration_max
@@ -124,6 +126,10 @@ def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
     control[ego, ACCELERATION] = held_acceleration
     for _ in range(c.substeps):
         sort_by_x(vehicles, order, rank, position)
+        all_leaders(
+            vehicles, order, position, lane, target_lane, c.lane_count, c.lane_width, c.road_length,
+            lane_leader, target_leader,
+        )
         for k in range(n - 1):  # IDMVehicle.act
             if crashed[k]:
                 continue
@@ -131,13 +137,10 @@ def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
             heading, speed = vehicles[k, HEADING], vehicles[k, SPEED]
             steer = steering_control(x, y, heading, speed, target_lane[k], c.lane_width)
             steer = min(max(steer, -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
-            front = leader(vehicles, order, position, k, lane[k], c.lane_width, c.road_length)
-            accel = idm_acceleration(vehicles, k, front, s.target_speed[b, k], s.delta[b, k], c.speed_limit)
-            if lane[k] != target_lane[k]:
-                front = leader(vehicles, order, position, k, target_lane[k], c.lane_width, c.road_length)
-                accel = min(
-                    accel, idm_acceleration(vehicles, k, front, s.target_speed[b, k], s.delta[b, k], c.speed_limit)
-                )
+            target_speed, delta = s.target_speed[b, k], s.delta[b, k]
+            accel = idm_acceleration(vehicles, k, lane_leader[k], target_speed, delta, c.speed_limit)
+            if lane[k] != target_lane[k]:  # "when changing lane, check both current and target lanes"
+                accel = min(accel, idm_acceleration(vehicles, k, target_leader[k], target_speed, delta, c.speed_limit))
             control[k, STEERING] = steer
             control[k, ACCELERATION] = clip_idm_acceleration(accel)
         for k in range(n):

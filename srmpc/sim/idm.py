@@ -47,8 +47,13 @@ def not_zero(value: float) -> float:
 
 @njit(cache=True)
 def steering_control(x: float, y: float, heading: float, speed: float, target_lane: int, lane_width: float) -> float:
-    """Steering [rad] that follows the centre of ``target_lane`` (lane heading 0)."""
+    """Steering [rad] that follows the centre of ``target_lane`` (lane heading 0).
+
+    On the lane centre with heading 0 every term is (+-)0, so the result is 0 (exact shortcut).
+    """
     lateral = y - target_lane * lane_width
+    if lateral == 0.0 and heading == 0.0:
+        return 0.0
     lateral_speed_command = -KP_LATERAL * lateral
     heading_command = np.arcsin(min(max(lateral_speed_command / not_zero(speed), -1.0), 1.0))
     heading_reference = 0.0 + min(max(heading_command, -np.pi / 4), np.pi / 4)
@@ -93,15 +98,57 @@ def leader(
 
 
 @njit(cache=True)
+def _direction(heading: float) -> tuple[float, float]:
+    """(cos, sin) of the heading; exactly (1, 0) at heading 0 without calling them."""
+    if heading == 0.0:
+        return 1.0, 0.0
+    return np.cos(heading), np.sin(heading)
+
+
+@njit(cache=True)
+def all_leaders(
+    vehicles: np.ndarray,
+    order: np.ndarray,
+    position: np.ndarray,
+    lane: np.ndarray,
+    target_lane: np.ndarray,
+    lane_count: int,
+    lane_width: float,
+    road_length: float,
+    lane_leader: np.ndarray,
+    target_leader: np.ndarray,
+) -> None:
+    """:func:`leader` of every vehicle on its lane and on its target lane, in one sweep.
+
+    Sweeping ``order`` from the front, the last vehicle seen on each lane is the leader of the
+    next vehicle behind it on that lane. This equals :func:`leader` whenever no two x are exactly
+    equal (ties are resolved by road order there); on a tie the scan :func:`leader` is used.
+    """
+    n = order.shape[0]
+    for p in range(1, n):
+        if vehicles[order[p], X] == vehicles[order[p - 1], X]:
+            for k in range(n):
+                lane_leader[k] = leader(vehicles, order, position, k, lane[k], lane_width, road_length)
+                target_leader[k] = leader(vehicles, order, position, k, target_lane[k], lane_width, road_length)
+            return
+    last_on_lane = np.full(lane_count, -1, dtype=np.int64)
+    for p in range(n - 1, -1, -1):
+        k = order[p]
+        lane_leader[k] = last_on_lane[lane[k]]
+        target_leader[k] = last_on_lane[target_lane[k]]
+        for candidate_lane in range(lane_count):
+            if on_lane(vehicles[k, X], vehicles[k, Y], candidate_lane, lane_width, road_length, NEIGHBOUR_LANE_MARGIN):
+                last_on_lane[candidate_lane] = k
+
+
+@njit(cache=True)
 def desired_gap(vehicles: np.ndarray, k: int, front: int) -> float:
     """s* = s0 + v T + v dv / (2 sqrt(a b)) [m], dv = (v_k - v_front) . (cos psi_k, sin psi_k)."""
     speed = vehicles[k, SPEED]
-    cos_k = np.cos(vehicles[k, HEADING])
-    sin_k = np.sin(vehicles[k, HEADING])
+    cos_k, sin_k = _direction(vehicles[k, HEADING])
+    cos_front, sin_front = _direction(vehicles[front, HEADING])
     front_speed = vehicles[front, SPEED]
-    dv = (speed * cos_k - front_speed * np.cos(vehicles[front, HEADING])) * cos_k + (
-        speed * sin_k - front_speed * np.sin(vehicles[front, HEADING])
-    ) * sin_k
+    dv = (speed * cos_k - front_speed * cos_front) * cos_k + (speed * sin_k - front_speed * sin_front) * sin_k
     ab = -IDM_COMFORT_ACC_MAX * IDM_COMFORT_ACC_MIN
     return IDM_DISTANCE_WANTED + speed * IDM_TIME_WANTED + speed * dv / (2 * np.sqrt(ab))
 

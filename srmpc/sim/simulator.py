@@ -165,6 +165,16 @@ class TwinSimulator:
         self._observation[...] = out.observation
         return out
 
+    def rollout(self, policy, horizon: int, scenes=None, record_others: bool = False):
+        """:func:`srmpc.sim.rollout.rollout` of ``policy`` from the current scenes (or ``scenes`` only).
+
+        The simulator's own state is not modified.
+        """
+        from srmpc.sim.rollout import rollout
+
+        state = self.state if scenes is None else self.state.take(scenes)
+        return rollout(state, self.constants, policy, horizon, record_others=record_others)
+
     # --------------------------------------------------------------------- snapshots
     def snapshot(self) -> SceneState:
         """A copy of the whole state (every scene), to :meth:`restore` later."""

@@ -13,8 +13,14 @@ from srmpc.sim.state import ACCELERATION, HEADING, SPEED, STEERING, X, Y
 
 @njit(cache=True)
 def wrap_to_pi(angle: float) -> float:
-    """((angle + pi) mod 2 pi) - pi, highway-env's ``utils.wrap_to_pi``."""
-    return ((angle + np.pi) % (2 * np.pi)) - np.pi
+    """((angle + pi) mod 2 pi) - pi, highway-env's ``utils.wrap_to_pi``.
+
+    The modulo is exact and the identity on [0, 2 pi), so it is skipped there (bit-identical).
+    """
+    shifted = angle + np.pi
+    if not (0.0 <= shifted < 2 * np.pi):
+        shifted = shifted % (2 * np.pi)
+    return shifted - np.pi
 
 
 @njit(cache=True)
@@ -99,16 +105,29 @@ def integrate(
     elif speed < MIN_SPEED:
         control[k, ACCELERATION] = max(control[k, ACCELERATION], 1.0 * (MIN_SPEED - speed))
     heading = vehicles[k, HEADING]
-    beta = np.arctan(1 / 2 * np.tan(control[k, STEERING]))
-    vehicles[k, X] += speed * np.cos(heading + beta) * dt
-    vehicles[k, Y] += speed * np.sin(heading + beta) * dt
+    steering = control[k, STEERING]
+    straight = steering == 0.0 and heading == 0.0
+    x_before = vehicles[k, X]
+    if straight:
+        # exact special case (tan 0 = atan 0 = sin 0 = 0, cos 0 = 1): a vehicle driving straight
+        beta = 0.0
+        vehicles[k, X] += speed * 1.0 * dt
+        vehicles[k, Y] += speed * 0.0 * dt
+    else:
+        beta = np.arctan(1 / 2 * np.tan(steering))
+        vehicles[k, X] += speed * np.cos(heading + beta) * dt
+        vehicles[k, Y] += speed * np.sin(heading + beta) * dt
     if has_impact[k]:
         vehicles[k, X] += impact[k, 0]
         vehicles[k, Y] += impact[k, 1]
         crashed[k] = True
         has_impact[k] = False
-    vehicles[k, HEADING] = heading + speed * np.sin(beta) / (VEHICLE_LENGTH / 2) * dt
+        straight = False
+    sin_beta = 0.0 if beta == 0.0 else np.sin(beta)
+    vehicles[k, HEADING] = heading + speed * sin_beta / (VEHICLE_LENGTH / 2) * dt
     vehicles[k, SPEED] = speed + control[k, ACCELERATION] * dt
+    if straight and 0.0 <= x_before and vehicles[k, X] <= road_length:
+        return  # y and heading (= 0) unchanged, no longitudinal term: the closest lane is unchanged
     lane[k] = closest_lane_index(
         vehicles[k, X], vehicles[k, Y], vehicles[k, HEADING], lane_count, lane_width, road_length
     )
