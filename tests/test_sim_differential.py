@@ -119,7 +119,7 @@ def test_twin_matches_highway_env_after_termination():
     env = SrmpcHighwayEnv(ScenarioParameters(mean_spawn_gap_m=15.0))
     collided = 0
     for seed in range(3):
-        result = run_differential(env, seed=3 * seed + 2, steps=60, stop_at_end=False)
+        run_differential(env, seed=3 * seed + 2, steps=60, stop_at_end=False)
         collided += any(v.crashed for v in env.road.vehicles)
     assert collided >= 1
 

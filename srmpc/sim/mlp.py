@@ -39,7 +39,8 @@ class MlpPolicy:
             if w.ndim != 2 or w.shape[0] != b.shape[0]:
                 raise ValueError(f"layer {i}: weight {w.shape} and bias {b.shape} do not match (out, in), (out,)")
             if i > 0 and w.shape[1] != self.weights[i - 1].shape[0]:
-                raise ValueError(f"layer {i}: input size {w.shape[1]} != previous output {self.weights[i - 1].shape[0]}")
+                previous = self.weights[i - 1].shape[0]
+                raise ValueError(f"layer {i}: input size {w.shape[1]} != previous output {previous}")
         if self.weights[-1].shape[0] < 2:
             raise ValueError("the last layer needs at least 2 outputs (delta, a)")
         self.action_low = np.asarray(action_low, dtype=np.float64)
