@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -93,13 +94,19 @@ class TwinSimulator:
 
         Copies positions, headings, speeds, held actions, crash flags, pending impacts, lanes,
         IDM targets and DELTA, the ego's road rank, the step counter and phi. ``params`` defaults
-        to the first env's. Later resets of the twin draw from its own streams (``seed``).
+        to the first env's; if the scenes hold another number of vehicles (hand-built scenes),
+        ``vehicles_count`` follows them. Later resets of the twin draw from its own streams (``seed``).
         """
         from srmpc.sim.highway_copy import state_from_highway_envs
 
         envs = list(envs)
         params = params if params is not None else envs[0].unwrapped.params
         state = state_from_highway_envs(envs)
+        others = state.vehicle_count - 1
+        if others != params.vehicles_count:  # a hand-built scene: later resets spawn as many vehicles
+            params = dataclasses.replace(
+                params, vehicles_count=others, vehicles_behind_ego=min(params.vehicles_behind_ego, others)
+            )
         seed_streams(state.rng, int(seed), 0)
         return cls(params, len(envs), seed=seed, threads=threads, state=state)
 
