@@ -25,8 +25,7 @@ def first_episode_returns(env: EnvBase, policy: TensorDictModule, steps: int, se
         torch.set_rng_state(rng)
     nxt = data.get("next")
     done = nxt.get("done").squeeze(-1).float()  # (B, T)
-    alive = 1.0 - torch.cumsum(done, dim=-1).clamp(max=1.0) + done  # 1 up to and including the first done
-    alive = alive.clamp(max=1.0)
+    alive = ((torch.cumsum(done, dim=-1) - done) == 0).float()  # 1 up to and including the first done
 
     def episode_sum(key: str) -> float:
         return float((nxt.get(key).squeeze(-1) * alive).sum(-1).mean())

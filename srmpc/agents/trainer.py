@@ -125,6 +125,38 @@ class EpisodeTracker:
         self.total_steps = state["total_steps"]
 
 
+def env_runtime_state(env: EnvBase) -> Any:
+    """The env's full simulation state, or None when it cannot give one.
+
+    Envs may implement ``runtime_state()`` / ``load_runtime_state(state)``; for
+    ``srmpc.sim.torchrl_env.TwinHighwayEnv`` the simulator's public ``snapshot()`` (every scene and
+    its random stream) plus the env's per-scene done flags are used.
+    """
+    if hasattr(env, "runtime_state"):
+        return env.runtime_state()
+    simulator = getattr(env, "simulator", None)
+    if simulator is not None and hasattr(simulator, "snapshot"):
+        done = getattr(env, "_done", None)
+        return {"simulator": simulator.snapshot(), "done": None if done is None else done.copy()}
+    return None
+
+
+def load_env_runtime_state(env: EnvBase, state: Any) -> bool:
+    """Put a state from :func:`env_runtime_state` back; False when the env cannot take it."""
+    if state is None:
+        return False
+    if hasattr(env, "load_runtime_state"):
+        env.load_runtime_state(state)
+        return True
+    simulator = getattr(env, "simulator", None)
+    if simulator is not None and hasattr(simulator, "restore") and "simulator" in state:
+        simulator.restore(state["simulator"])
+        if state["done"] is not None:
+            env._done[...] = state["done"]
+        return True
+    return False
+
+
 class Trainer:
     """PPO / PPO-L-SI trainer. ``run`` is an :class:`srmpc.tracking.Run` (or anything with
     ``log_metrics(dict, step)``); ``output_dir`` receives ``last.pt``, ``policy.pt`` and ``metrics.csv``.
@@ -172,7 +204,7 @@ class Trainer:
     # ----------------------------------------------------------------------------------------- state
     def state(self) -> dict[str, Any]:
         """Everything a resume needs (see srmpc.agents.checkpoint)."""
-        env_state = self.env.runtime_state() if hasattr(self.env, "runtime_state") else None
+        env_state = env_runtime_state(self.env)
         return copy.deepcopy({
             "iteration": self.iteration, "frames": self.frames, "wall_s": self.wall_s,
             "loss": self.loss.state_dict(),
@@ -190,14 +222,12 @@ class Trainer:
             optimizer.load_state_dict(state["optimizers"][k])
         torch.set_rng_state(state["torch_rng"])
         self.shuffle.set_state(state["shuffle_rng"])
-        if state["env"] is not None and hasattr(self.env, "load_runtime_state"):
-            self.env.load_runtime_state(state["env"])
+        if load_env_runtime_state(self.env, state["env"]):
             self.collector._carrier.update(state["carrier"])
-        # else: the env cannot restore its state; episodes restart from fresh resets (documented).
-        else:
+            self.episodes.load(state["episodes"])
+        else:  # the env cannot restore its state: episodes restart from fresh resets
+            self.episodes.load(state["episodes"])
             self.episodes.sums = {k: torch.zeros_like(v) for k, v in self.episodes.sums.items()}
-            return
-        self.episodes.load(state["episodes"])
 
     def save(self, state: dict[str, Any] | None = None) -> Path:
         state = self._snapshot if state is None else state
