@@ -20,8 +20,8 @@ PARAMS = ScenarioParameters()
 def test_short_training_on_the_simulator_raises_return(tmp_path):
     hp = PPOHyperparameters(num_envs=256, frames_per_batch=256 * 32, minibatch_size=2048, epochs=4,
                             total_frames=256 * 32 * 8, checkpoint_every=100)
-    env = TwinHighwayEnv(PARAMS, hp.num_envs, seed=hp.seed)
-    probe = TwinHighwayEnv(PARAMS, 128, seed=1)
+    env = TwinHighwayEnv(PARAMS, hp.num_envs, seed=hp.seed, threads=1)
+    probe = TwinHighwayEnv(PARAMS, 128, seed=1, threads=1)
     trainer = Trainer(env, hp, tmp_path, progress=False)
     before = first_episode_returns(probe, trainer.loss.actor_network, 200, seed=11)
     started = time.monotonic()
@@ -40,10 +40,10 @@ def test_short_training_on_the_simulator_raises_return(tmp_path):
 def test_resume_on_the_simulator_reproduces_the_next_iterate(tmp_path):
     hp = PPOHyperparameters(num_envs=32, frames_per_batch=32 * 16, minibatch_size=256, epochs=2,
                             total_frames=32 * 16 * 10, checkpoint_every=1)
-    straight = Trainer(TwinHighwayEnv(PARAMS, 32, seed=0), hp, tmp_path / "a", progress=False)
+    straight = Trainer(TwinHighwayEnv(PARAMS, 32, seed=0, threads=1), hp, tmp_path / "a", progress=False)
     straight.train(max_iterations=3)
-    Trainer(TwinHighwayEnv(PARAMS, 32, seed=0), hp, tmp_path / "b", progress=False).train(max_iterations=2)
-    resumed = Trainer(TwinHighwayEnv(PARAMS, 32, seed=99), hp, tmp_path / "b", progress=False)
+    Trainer(TwinHighwayEnv(PARAMS, 32, seed=0, threads=1), hp, tmp_path / "b", progress=False).train(max_iterations=2)
+    resumed = Trainer(TwinHighwayEnv(PARAMS, 32, seed=99, threads=1), hp, tmp_path / "b", progress=False)
     assert resumed.resumed_from == 2
     resumed.train(max_iterations=1)
     expected, got = straight.loss.state_dict(), resumed.loss.state_dict()

@@ -75,8 +75,9 @@ class PPOHyperparameters:
     """Parallel simulator instances B (the batch of the batched env)."""
     frames_per_batch: int = 32_768
     """Environment steps collected per iteration (a multiple of num_envs: T = frames_per_batch / B)."""
-    total_frames: int = 20_000_000
-    """Environment steps of training."""
+    total_frames: int = 6_000_000
+    """Environment steps of training (183 iterations). A 600k-step trial run on the simulator had
+    PPO-L-SI's cost rate flat at ~1e-3 from about 500k steps on; 10x that leaves room for the return."""
     minibatch_size: int = 8192
     """SGD minibatch size (divides frames_per_batch): 4 Adam steps per epoch."""
     epochs: int = 4
@@ -90,6 +91,10 @@ class PPOHyperparameters:
     num_threads: int = 1
     """torch intra-op threads. 1: 2x64 MLPs gain nothing from more, and on a shared 2-core machine two
     spinning OpenMP threads made iterations 10-20x slower (measured) when the other core was busy."""
+    sim_threads: int = 1
+    """numba threads of the simulator's step (1: the serial kernel, no OpenMP pool). With 2 threads the
+    pool's spin-wait after each step slowed the torch update so much that end-to-end training fell
+    from 9.6k to 1.8k env steps/s on the shared 2-core machine (measured side by side)."""
     task: TrainTask = TrainTask.twin_highway
     """Environment to train on (``toy`` only for smoke runs)."""
     output_dir: str | None = None

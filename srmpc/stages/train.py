@@ -21,7 +21,7 @@ from srmpc.config.schema import Config
 from srmpc.stages.evaluate import atomic_write_text
 from srmpc.tracking import Run
 
-RESUMABLE_OVERRIDES = ("total_frames", "checkpoint_every", "output_dir", "num_threads")
+RESUMABLE_OVERRIDES = ("total_frames", "checkpoint_every", "output_dir", "num_threads", "sim_threads")
 """Agent fields that may change between an interrupted run and its resume."""
 
 
@@ -40,7 +40,7 @@ def make_training_env(config: Config):
         from srmpc.sim.torchrl_env import TwinHighwayEnv
     except ImportError as error:
         raise ConfigError(f"agent.task={hp.task.value}: the batched simulator is not available ({error})") from error
-    return TwinHighwayEnv(config.scenario, num_envs=hp.num_envs, seed=hp.seed)
+    return TwinHighwayEnv(config.scenario, num_envs=hp.num_envs, seed=hp.seed, threads=hp.sim_threads)
 
 
 def _identity_yaml(cfg_container: dict) -> str:
