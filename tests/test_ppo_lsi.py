@@ -17,6 +17,7 @@ from srmpc.agents.report import read_metrics, summarize_training
 from srmpc.agents.toy_env import ToyConstrainedEnv
 from srmpc.agents.trainer import NonFiniteError, Trainer, build_loss, parameter_groups
 
+torch.set_num_threads(1)  # as the trainer does: small MLPs, and spinning threads stall a shared machine
 LOW, HIGH = torch.tensor([-0.1, -5.0]), torch.tensor([0.1, 5.0])
 
 

@@ -14,6 +14,7 @@ from srmpc.scenario.parameters import ScenarioParameters
 from srmpc.sim.torchrl_env import TwinHighwayEnv
 
 PARAMS = ScenarioParameters()
+torch.set_num_threads(1)  # as the trainer does: small MLPs, and spinning threads stall a shared machine
 
 
 @pytest.mark.timeout(600)
