@@ -8,7 +8,9 @@ import pytest
 import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from srmpc.agents.checkpoint import load_actor
 from srmpc.agents.evaluation import first_episode_returns
 from srmpc.agents.hyperparameters import PPOHyperparameters, TrainTask
 from srmpc.agents.networks import COST_VALUE_KEY
@@ -183,4 +185,8 @@ def test_interrupt_saves_last_completed_iteration(tmp_path):
     with pytest.raises(SystemExit):
         trainer.train(on_iteration=interrupt)
     assert torch.load(tmp_path / "last.pt", weights_only=False)["iteration"] == 2
-    assert (tmp_path / "policy.pt").exists()
+    actor = load_actor(tmp_path / "policy.pt")
+    observation = TensorDict({"observation": torch.randn(5, 30)}, [5])
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        expected = trainer.loss.actor_network(observation.clone())["action"]
+        assert torch.equal(actor(observation.clone())["action"], expected)

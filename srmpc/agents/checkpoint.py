@@ -45,3 +45,13 @@ def load_checkpoint(directory: Path) -> dict[str, Any] | None:
 def save_policy(actor_state: dict[str, torch.Tensor], metadata: dict[str, Any], path: Path) -> None:
     """A small deployable file: the actor's state dict and what is needed to rebuild it."""
     atomic_torch_save({"actor": actor_state, **metadata}, path)
+
+
+def load_actor(path: Path):
+    """Rebuild the actor (a ProbabilisticActor) saved in a ``policy.pt`` by :func:`save_policy`."""
+    from srmpc.agents.networks import make_actor
+
+    saved = torch.load(path, weights_only=False)
+    actor = make_actor(saved["observation_dim"], saved["action_low"], saved["action_high"], saved["hidden_sizes"])
+    actor.load_state_dict(saved["actor"])
+    return actor

@@ -14,7 +14,9 @@ def first_episode_returns(env: EnvBase, policy: TensorDictModule, steps: int, se
 
     Returns means over the batch of: ``train_return`` (sum of r), ``return`` (sum of r', the paper's
     J_r, up to ``steps``), ``cost_return`` (event costs, J_c), ``steps`` (episode length, capped at
-    ``steps``). The global torch RNG (policy sampling) is seeded with ``seed`` and restored after.
+    ``steps``). The policy acts with its default interaction type (outside ``set_exploration_type``:
+    TorchRL's deterministic mode, for this actor the squashed mean). The global torch RNG is seeded
+    with ``seed`` and restored after.
     """
     rng = torch.get_rng_state()
     torch.manual_seed(seed)
