@@ -83,13 +83,14 @@ class _SignCostValue(torch.nn.Module):
         return torch.where(observation[..., :1] > 0, 1.0, -1.0)
 
 
-def test_multiplier_rises_where_cost_value_positive_and_falls_to_zero_where_negative():
+@pytest.mark.parametrize("on_logit", [False, True])
+def test_multiplier_rises_where_cost_value_positive_and_falls_to_zero_where_negative(on_logit):
     torch.manual_seed(0)
     hp = small()
     reference = build_loss(30, LOW, HIGH, hp)
     loss = PPOLSILoss(reference.actor_network, reference.critic_network,
                       TensorDictModule(_SignCostValue(), in_keys=["observation"], out_keys=[COST_VALUE_KEY]),
-                      reference.multiplier_network, lambda_max=hp.lambda_max)
+                      reference.multiplier_network, lambda_max=hp.lambda_max, multiplier_loss_on_logit=on_logit)
     batch = rollout_batch(reference)
     observation = torch.randn(512, 30)
     batch = batch[:1].expand(512).clone()

@@ -59,6 +59,9 @@ class PPOHyperparameters:
     """lambda(s) takes one epoch of minibatch steps (the first) every this many iterations, while the
     actor and critics take ``epochs`` of them: the slower timescale of the dual ascent (FAC: dual
     ascent every 12 updates)."""
+    multiplier_loss_on_logit: bool = False
+    """Take the multiplier loss on softplus's input z(s) rather than on lambda(s) (same fixed points; the
+    step does not vanish where lambda ~ 0). False: FAC / Ma et al. as published."""
     lambda_max: float = 50.0
     """Cap of lambda(s): the paper's numerical 'infinite' multiplier (Ma et al. clip at 50)."""
     initial_lambda: float = 1.0

@@ -74,6 +74,10 @@ class Multiplier(nn.Module):
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         return nn.functional.softplus(self.net(observation)).clamp(max=self.lambda_max)
 
+    def logit(self, observation: torch.Tensor) -> torch.Tensor:
+        """The pre-softplus output z(s), lambda(s) = min(softplus(z(s)), lambda_max)."""
+        return self.net(observation)
+
 
 def make_actor(
     observation_dim: int,

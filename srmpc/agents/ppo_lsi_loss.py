@@ -15,6 +15,12 @@ GAEs over the same batch):
     loss_multiplier  = -mean_t[ lambda(s_t) * stop_grad(clip(v_c(s_t) - d, -clip_low, clip_high)) ]
     loss_entropy     = -entropy_coeff * mean_t[ H(pi(.|s_t)) ]
 
+With ``multiplier_loss_on_logit`` the multiplier loss is taken on the pre-softplus logit z(s) instead,
+-mean(z(s) * violation), with the gradient stopped where z(s) is already at its bounds in the pushed
+direction (z <= LOGIT_FLOOR and satisfied, lambda >= lambda_max and violated). The fixed points are
+the same; the step no longer shrinks by sigmoid(z) = dlambda/dz, which is ~0.02 at lambda = 0.02, so
+states whose lambda has collapsed to ~0 can rise again as fast as any other.
+
 The multiplier loss is Feasible Actor-Critic's (Ma et al. 2021) dual ascent on the state-wise
 constraint v_c(s) <= d: gradient descent on it raises lambda(s) where the constraint is violated
 (v_c(s) > d) and lowers it where it holds, until softplus drives it to ~0 (inactive constraint) or
@@ -36,11 +42,13 @@ from tensordict.nn import TensorDictModule
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from srmpc.agents.networks import COST_VALUE_KEY, LAMBDA_KEY, LOG_PROB_KEY, VALUE_KEY
+from srmpc.agents.networks import COST_VALUE_KEY, LOG_PROB_KEY, VALUE_KEY
 
 COST_KEY = "cost"
 COST_ADVANTAGE_KEY = "cost_advantage"
 COST_VALUE_TARGET_KEY = "cost_value_target"
+LOGIT_FLOOR = -5.0
+"""Lower bound of the multiplier logit under ``multiplier_loss_on_logit`` (softplus(-5) = 0.0067)."""
 
 
 class PPOLSILoss(ClipPPOLoss):
@@ -61,6 +69,7 @@ class PPOLSILoss(ClipPPOLoss):
             which bounds how fast lambda(s) falls on safe states and rises on unsafe ones.
         lambda_max: cap of lambda(s) (for the share-at-cap diagnostic; the network applies it).
         samples_mc_entropy: Monte-Carlo samples for the entropy (TanhNormal has no closed form).
+        multiplier_loss_on_logit: take the multiplier loss on the pre-softplus logit (see module doc).
     """
 
     def __init__(
@@ -80,6 +89,7 @@ class PPOLSILoss(ClipPPOLoss):
         violation_clip: tuple[float, float] = (0.3, 100.0),
         lambda_max: float = 50.0,
         samples_mc_entropy: int = 1,
+        multiplier_loss_on_logit: bool = False,
     ) -> None:
         super().__init__(
             actor_network, critic_network, clip_epsilon=clip_epsilon, entropy_bonus=True,
@@ -92,6 +102,7 @@ class PPOLSILoss(ClipPPOLoss):
         self.cost_threshold = cost_threshold
         self.violation_clip = violation_clip
         self.lambda_max = lambda_max
+        self.multiplier_loss_on_logit = multiplier_loss_on_logit
         if constrained:
             if cost_critic_network is None or multiplier_network is None:
                 raise ValueError("constrained=True needs cost_critic_network and multiplier_network")
@@ -139,7 +150,8 @@ class PPOLSILoss(ClipPPOLoss):
             cost_advantage = td.get(COST_ADVANTAGE_KEY)
             cost_advantage = cost_advantage - cost_advantage.mean()
             gain_cost = torch.maximum(ratio * cost_advantage, clipped_ratio * cost_advantage)
-            multiplier = self.multiplier_network(td.select(*self.multiplier_network.in_keys)).get(LAMBDA_KEY)
+            logit = self.multiplier_network.module.logit(td.get(self.multiplier_network.in_keys[0]))
+            multiplier = torch.nn.functional.softplus(logit).clamp(max=self.lambda_max)
             lam = multiplier.detach()
             out["loss_objective"] = (-(gain_reward - lam * gain_cost) / (1.0 + lam)).mean()
 
@@ -147,7 +159,11 @@ class PPOLSILoss(ClipPPOLoss):
             out["loss_cost_critic"] = (cost_value - td.get(COST_VALUE_TARGET_KEY)).pow(2).mean()
             violation = (cost_value.detach() - self.cost_threshold).clamp(-self.violation_clip[0],
                                                                           self.violation_clip[1])
-            out["loss_multiplier"] = -(multiplier * violation).mean()
+            if self.multiplier_loss_on_logit:
+                at_bound = ((logit <= LOGIT_FLOOR) & (violation < 0)) | ((lam >= self.lambda_max) & (violation > 0))
+                out["loss_multiplier"] = -(torch.where(at_bound, logit.detach(), logit) * violation).mean()
+            else:
+                out["loss_multiplier"] = -(multiplier * violation).mean()
             out["lambda_mean"] = lam.mean()
             out["lambda_max"] = lam.max()
             out["lambda_share_at_max"] = (lam >= self.lambda_max * (1.0 - 1e-6)).float().mean()

@@ -55,7 +55,7 @@ def build_loss(observation_dim: int, action_low: torch.Tensor, action_high: torc
         actor, critic, cost_critic, multiplier, constrained=hp.constrained, clip_epsilon=hp.clip_epsilon,
         entropy_coeff=hp.entropy_coef, gamma=hp.gamma, gae_lambda=hp.gae_lambda, cost_gamma=hp.cost_gamma,
         cost_threshold=hp.cost_threshold, violation_clip=(hp.violation_clip_low, hp.violation_clip_high),
-        lambda_max=hp.lambda_max,
+        lambda_max=hp.lambda_max, multiplier_loss_on_logit=hp.multiplier_loss_on_logit,
     )
 
 
