@@ -5,10 +5,11 @@ Examples::
     python -m srmpc +experiment=smoke
     python -m srmpc +experiment=dense_traffic evaluation.episodes=100
     python -m srmpc --cfg job              # print the composed config
+    python -m srmpc stage=train agent=ppo_lsi   # train PPO-L-SI (agent=ppo: the baseline)
 
 Config errors (wrong type, unknown key, invalid choice, invalid value) exit with status 2 and one
 line naming the key and the value. SIGTERM ends the run cleanly: the MLflow run is marked FAILED
-and finished episodes stay on disk for a resume.
+and finished episodes (evaluation) or the last completed iteration (training) stay on disk for a resume.
 """
 
 from __future__ import annotations
@@ -42,7 +43,10 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
     config: Config = to_objects(cfg)
     config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
     tracking = config.tracking
-    run_name = f"{config.stage.value}-{config.evaluation.controller.value}-{config.scenario.traffic}"
+    if config.stage is Stage.train:
+        run_name = f"train-{config.agent.name}-{config.agent.task.value}-{config.scenario.traffic}"
+    else:
+        run_name = f"{config.stage.value}-{config.evaluation.controller.value}-{config.scenario.traffic}"
     with tracked_run(
         tracking.enabled, tracking.uri, tracking.artifact_location, tracking.experiment_name, run_name,
         OmegaConf.to_container(cfg, resolve=True), config_yaml,
@@ -52,6 +56,10 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
 
             eval_dir = Path(config.evaluation.output_dir) if config.evaluation.output_dir else output_dir
             return run_evaluation(config, config_yaml, eval_dir, active_run)
+        if config.stage is Stage.train:
+            from srmpc.stages.train import run_training
+
+            return run_training(config, OmegaConf.to_container(cfg, resolve=True), active_run)
     raise ConfigError(f"stage={config.stage.value}: no runner")
 
 

@@ -12,6 +12,7 @@ from enum import Enum
 
 from hydra.core.config_store import ConfigStore
 
+from srmpc.agents.hyperparameters import PPOHyperparameters
 from srmpc.scenario.parameters import ScenarioParameters
 
 
@@ -20,6 +21,8 @@ class Stage(Enum):
 
     evaluate = "evaluate"
     """Run closed-loop evaluation episodes of ``evaluation.controller``."""
+    train = "train"
+    """Train ``agent`` (PPO or PPO-L-SI) on the batched simulator; resumes from its checkpoint."""
 
 
 class ControllerName(Enum):
@@ -31,46 +34,8 @@ class ControllerName(Enum):
     """LTV-MPC with the ``planner`` settings (srmpc.controllers.ltv_mpc)."""
 
 
-@dataclass
-class AgentConfig:
-    """PPO / PPO-L-SI hyperparameters (consumed by the training stage)."""
-
-    name: str = "ppo_lsi"
-    """Run label: "ppo" or "ppo_lsi"."""
-    constrained: bool = True
-    """PPO-L-SI (True): cost critic, SI cost and state-dependent multiplier lambda(s). PPO: False."""
-    hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
-    """Hidden layer widths of actor, critics and multiplier network (paper: small for real time)."""
-    gamma: float = 0.99
-    """Reward discount factor."""
-    cost_gamma: float = 0.99
-    """Cost discount factor gamma_c."""
-    gae_lambda: float = 0.95
-    """GAE lambda for both advantages."""
-    clip_epsilon: float = 0.2
-    """PPO ratio clip."""
-    entropy_coef: float = 0.0
-    """Entropy bonus weight."""
-    actor_lr: float = 3e-4
-    """Adam learning rate of the actor."""
-    critic_lr: float = 1e-3
-    """Adam learning rate of both critics."""
-    multiplier_lr: float = 1e-4
-    """Adam learning rate of lambda(s) (slower schedule than the actor)."""
-    multiplier_update_every: int = 5
-    """Iterations between multiplier updates."""
-    lambda_max: float = 50.0
-    """Cap of lambda(s): the paper's 'infinite' multiplier threshold."""
-    total_frames: int = 20_000_000
-    """Environment steps of training."""
-    frames_per_batch: int = 32_768
-    """Environment steps collected per iteration."""
-    minibatch_size: int = 4096
-    """SGD minibatch size."""
-    epochs: int = 10
-    """SGD passes over each batch."""
-    seed: int = 0
-    """Training seed."""
+AgentConfig = PPOHyperparameters
+"""PPO / PPO-L-SI hyperparameters (srmpc.agents.hyperparameters, every field documented there)."""
 
 
 @dataclass

@@ -1,0 +1,57 @@
+"""Checkpoints: everything needed to continue a training run bit for bit on CPU.
+
+A checkpoint holds the networks (the loss module's state dict), the three optimizers, the torch
+and shuffling RNG states, the collector's carrier (the current observations of every env), the
+simulator's runtime state (if the env exposes ``runtime_state()`` / ``load_runtime_state()``), the
+per-env running episode sums, the iteration and frame counters. Files are written atomically
+(temporary file + rename), so a crash mid-write leaves the previous checkpoint intact.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+CHECKPOINT_NAME = "last.pt"
+POLICY_NAME = "policy.pt"
+
+
+def atomic_torch_save(obj: Any, path: Path) -> None:
+    """torch.save to ``path`` via a temporary file and rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(path.name + ".tmp")
+    torch.save(obj, temporary)
+    os.replace(temporary, path)
+
+
+def save_checkpoint(state: dict[str, Any], directory: Path) -> Path:
+    """Write ``state`` as ``directory/last.pt``; return the path."""
+    path = directory / CHECKPOINT_NAME
+    atomic_torch_save(state, path)
+    return path
+
+
+def load_checkpoint(directory: Path) -> dict[str, Any] | None:
+    """The state of ``directory/last.pt``, or None when there is none."""
+    path = directory / CHECKPOINT_NAME
+    if not path.exists():
+        return None
+    return torch.load(path, weights_only=False)
+
+
+def save_policy(actor_state: dict[str, torch.Tensor], metadata: dict[str, Any], path: Path) -> None:
+    """A small deployable file: the actor's state dict and what is needed to rebuild it."""
+    atomic_torch_save({"actor": actor_state, **metadata}, path)
+
+
+def load_actor(path: Path):
+    """Rebuild the actor (a ProbabilisticActor) saved in a ``policy.pt`` by :func:`save_policy`."""
+    from srmpc.agents.networks import make_actor
+
+    saved = torch.load(path, weights_only=False)
+    actor = make_actor(saved["observation_dim"], saved["action_low"], saved["action_high"], saved["hidden_sizes"])
+    actor.load_state_dict(saved["actor"])
+    return actor

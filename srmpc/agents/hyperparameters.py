@@ -1,0 +1,128 @@
+"""Hyperparameters of PPO / PPO-L-SI. This dataclass is also the Hydra schema of ``conf/agent``.
+
+The paper gives no training hyperparameters; the defaults are CleanRL's continuous-control PPO
+values where they apply, Feasible Actor-Critic / Safety-Index-Synthesis values (Ma et al.) for the
+multiplier, and the batch layout is chosen for a 2-core CPU with the batched simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+
+def _check(condition: bool, key: str, value: object, expectation: str) -> None:
+    if not condition:
+        raise ValueError(f"{key}={value!r}: {expectation}")
+
+
+class TrainTask(Enum):
+    """What the agent trains on."""
+
+    twin_highway = "twin_highway"
+    """The batched highway simulator srmpc.sim.torchrl_env.TwinHighwayEnv (the paper's task)."""
+    toy = "toy"
+    """srmpc.agents.toy_env.ToyConstrainedEnv: a seconds-long smoke task with the same keys."""
+
+
+@dataclass
+class PPOHyperparameters:
+    """PPO (``constrained=False``) and PPO-L-SI (``constrained=True``) training settings."""
+
+    name: str = "ppo_lsi"
+    """Run label: "ppo" or "ppo_lsi" (names the output directory and the MLflow run)."""
+    constrained: bool = True
+    """PPO-L-SI: cost critic v_c(s), SI cost, state-dependent multiplier lambda(s). False: plain PPO."""
+    hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
+    """Hidden widths of actor, both critics and the multiplier net (paper: a small policy for real time)."""
+    initial_std: float = 0.5
+    """Initial standard deviation of the Gaussian before the tanh squash (state-independent, learned)."""
+    gamma: float = 0.99
+    """Reward discount gamma (horizon ~100 steps = 20 s at 5 Hz)."""
+    cost_gamma: float = 0.9
+    """Cost discount gamma_c. Short (~10 steps = 2 s, the SI's look-ahead scale) so that v_c(s) measures
+    the state-wise SI constraint near s rather than the -0.1 floor accumulated over 20 s."""
+    gae_lambda: float = 0.95
+    """GAE lambda of both advantages."""
+    clip_epsilon: float = 0.2
+    """PPO ratio clip eps (applied to the reward and the cost surrogate)."""
+    entropy_coef: float = 0.0
+    """Entropy bonus weight (0 as in CleanRL's continuous PPO; the learned std explores)."""
+    actor_lr: float = 3e-4
+    """Adam learning rate of the actor."""
+    critic_lr: float = 1e-3
+    """Adam learning rate of the reward and cost critics."""
+    multiplier_lr: float = 1e-3
+    """Adam learning rate of lambda(s). With Adam the output of a 2x64 net moves by up to ~65 x lr per
+    step, so 1e-3 lets lambda(s) cross [0, 50] within a few hundred iterations."""
+    multiplier_update_every: int = 1
+    """lambda(s) takes one epoch of minibatch steps (the first) every this many iterations, while the
+    actor and critics take ``epochs`` of them: the slower timescale of the dual ascent (FAC: dual
+    ascent every 12 updates)."""
+    multiplier_loss_on_logit: bool = False
+    """Take the multiplier loss on softplus's input z(s) rather than on lambda(s) (same fixed points; the
+    step does not vanish where lambda ~ 0). False: FAC / Ma et al. as published."""
+    lambda_max: float = 50.0
+    """Cap of lambda(s): the paper's numerical 'infinite' multiplier (Ma et al. clip at 50)."""
+    initial_lambda: float = 1.0
+    """lambda(s) everywhere at initialisation (softplus bias set accordingly)."""
+    cost_threshold: float = 0.0
+    """d of the state-wise constraint v_c(s) <= d [units of the SI cost]."""
+    violation_clip_low: float = 0.3
+    """v_c(s) - d is clipped below at -violation_clip_low in the multiplier loss (how fast lambda falls)."""
+    violation_clip_high: float = 100.0
+    """... and above at violation_clip_high (how fast lambda rises)."""
+    max_grad_norm: float = 0.5
+    """Global gradient-norm clip of the actor and of the critics."""
+    num_envs: int = 1024
+    """Parallel simulator instances B (the batch of the batched env)."""
+    frames_per_batch: int = 32_768
+    """Environment steps collected per iteration (a multiple of num_envs: T = frames_per_batch / B)."""
+    total_frames: int = 6_000_000
+    """Environment steps of training (183 iterations). A 600k-step trial run on the simulator had
+    PPO-L-SI's cost rate flat at ~1e-3 from about 500k steps on; 10x that leaves room for the return."""
+    minibatch_size: int = 8192
+    """SGD minibatch size (divides frames_per_batch): 4 Adam steps per epoch."""
+    epochs: int = 4
+    """SGD passes over each batch. 4 (as Brax / Isaac Gym PPO at large batches), not CleanRL's 10: one
+    pass over 32k samples costs ~0.6 s on one core (measured), so 10 epochs would cap training at
+    ~10k env steps/s whatever the simulator's speed."""
+    checkpoint_every: int = 10
+    """Iterations between checkpoints (the last one is also written at the end and on SIGTERM)."""
+    seed: int = 0
+    """Seed of torch, the simulator and the minibatch shuffling."""
+    num_threads: int = 1
+    """torch intra-op threads. 1: 2x64 MLPs gain nothing from more, and on a shared 2-core machine two
+    spinning OpenMP threads made iterations 10-20x slower (measured) when the other core was busy."""
+    sim_threads: int = 1
+    """numba threads of the simulator's step (1: the serial kernel, no OpenMP pool). With 2 threads the
+    pool's spin-wait after each step slowed the torch update so much that end-to-end training fell
+    from 9.6k to 1.8k env steps/s on the shared 2-core machine (measured side by side)."""
+    task: TrainTask = TrainTask.twin_highway
+    """Environment to train on (``toy`` only for smoke runs)."""
+    output_dir: str | None = None
+    """Checkpoints, policy.pt, metrics.csv, summary.json; null means results/training/<name>. Rerunning
+    with a checkpoint there resumes it (the agent and scenario config must be the same)."""
+
+    def __post_init__(self) -> None:
+        _check(self.num_envs > 0, "num_envs", self.num_envs, "must be > 0")
+        _check(self.frames_per_batch % self.num_envs == 0, "frames_per_batch", self.frames_per_batch,
+               f"must be a multiple of num_envs={self.num_envs}")
+        _check(self.frames_per_batch % self.minibatch_size == 0, "minibatch_size", self.minibatch_size,
+               f"must divide frames_per_batch={self.frames_per_batch}")
+        _check(self.total_frames >= self.frames_per_batch, "total_frames", self.total_frames,
+               f"must be >= frames_per_batch={self.frames_per_batch}")
+        _check(0.0 < self.gamma <= 1.0, "gamma", self.gamma, "must lie in (0, 1]")
+        _check(0.0 < self.cost_gamma <= 1.0, "cost_gamma", self.cost_gamma, "must lie in (0, 1]")
+        _check(0.0 <= self.gae_lambda <= 1.0, "gae_lambda", self.gae_lambda, "must lie in [0, 1]")
+        _check(0.0 < self.initial_lambda < self.lambda_max, "initial_lambda", self.initial_lambda,
+               "must lie in (0, lambda_max)")
+        _check(self.multiplier_update_every > 0, "multiplier_update_every", self.multiplier_update_every, "must be > 0")
+        _check(self.checkpoint_every > 0, "checkpoint_every", self.checkpoint_every, "must be > 0")
+        _check(self.epochs > 0, "epochs", self.epochs, "must be > 0")
+        _check(self.initial_std > 0.0, "initial_std", self.initial_std, "must be > 0")
+
+    @property
+    def iterations(self) -> int:
+        """Number of collect-and-update iterations (total_frames rounded down to whole batches)."""
+        return self.total_frames // self.frames_per_batch

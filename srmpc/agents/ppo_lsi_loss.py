@@ -1,0 +1,181 @@
+"""PPO-L-SI loss: clipped PPO with a cost critic and a state-dependent Lagrange multiplier lambda(s).
+
+Paper eq. (lagrangian2): L(pi, lambda) = E_s[-v_pi(s) + lambda(s) v_pi^c(s)], minimised over the
+policy and maximised over lambda(s) >= 0. In PPO form, per sampled state s_t with action a_t,
+ratio rho_t = pi(a_t|s_t) / pi_old(a_t|s_t), reward advantage A_t and cost advantage A^c_t (two
+GAEs over the same batch):
+
+    g_r(t) = min(rho_t A_t, clip(rho_t, 1-eps, 1+eps) A_t)          clipped reward surrogate (max)
+    g_c(t) = max(rho_t A^c_t, clip(rho_t, 1-eps, 1+eps) A^c_t)      clipped cost surrogate (min;
+                                                                    pessimistic like g_r)
+    lam_t  = stop_grad(lambda(s_t))
+    loss_objective   = mean_t[ -(g_r(t) - lam_t g_c(t)) / (1 + lam_t) ]
+    loss_critic      = mean_t[ (v(s_t) - R_t)^2 ]                     R_t: reward GAE target
+    loss_cost_critic = mean_t[ (v_c(s_t) - R^c_t)^2 ]                 R^c_t: cost GAE target
+    loss_multiplier  = -mean_t[ lambda(s_t) * stop_grad(clip(v_c(s_t) - d, -clip_low, clip_high)) ]
+    loss_entropy     = -entropy_coeff * mean_t[ H(pi(.|s_t)) ]
+
+With ``multiplier_loss_on_logit`` the multiplier loss is taken on the pre-softplus logit z(s) instead,
+-mean(z(s) * violation), with the gradient stopped where z(s) is already at its bounds in the pushed
+direction (z <= LOGIT_FLOOR and satisfied, lambda >= lambda_max and violated). The fixed points are
+the same; the step no longer shrinks by sigmoid(z) = dlambda/dz, which is ~0.02 at lambda = 0.02, so
+states whose lambda has collapsed to ~0 can rise again as fast as any other.
+
+The multiplier loss is Feasible Actor-Critic's (Ma et al. 2021) dual ascent on the state-wise
+constraint v_c(s) <= d: gradient descent on it raises lambda(s) where the constraint is violated
+(v_c(s) > d) and lowers it where it holds, until softplus drives it to ~0 (inactive constraint) or
+the cap lambda_max (the paper's "infinite" multiplier: an infeasible state). The division by
+1 + lam_t (as in PPO-Lagrangian implementations) keeps the policy-gradient scale bounded when
+lambda is large. The reward advantage is standardised per minibatch; the cost advantage is only
+centred, so that lambda keeps the cost's units. With ``constrained=False`` the module is plain
+clipped PPO (loss_objective = mean(-g_r)); no cost critic or multiplier is needed.
+
+Gradient routing: loss_objective and loss_entropy reach only the actor (advantages and lambda are
+detached), loss_critic only v, loss_cost_critic only v_c, loss_multiplier only lambda(s).
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from srmpc.agents.networks import COST_VALUE_KEY, LOG_PROB_KEY, VALUE_KEY
+
+COST_KEY = "cost"
+COST_ADVANTAGE_KEY = "cost_advantage"
+COST_VALUE_TARGET_KEY = "cost_value_target"
+LOGIT_FLOOR = -5.0
+"""Lower bound of the multiplier logit under ``multiplier_loss_on_logit`` (softplus(-5) = 0.0067)."""
+
+
+class PPOLSILoss(ClipPPOLoss):
+    """Clipped PPO (``constrained=False``) or PPO-L-SI (``constrained=True``).
+
+    Args:
+        actor_network: ProbabilisticActor writing ``action`` / ``action_log_prob``.
+        critic_network: reward critic writing ``state_value``.
+        cost_critic_network: cost critic writing ``cost_value`` (required when constrained).
+        multiplier_network: lambda(s) writing ``lambda`` (required when constrained).
+        constrained: PPO-L-SI when True, PPO when False.
+        clip_epsilon: PPO ratio clip eps.
+        entropy_coeff: weight of the entropy bonus.
+        gamma, gae_lambda: discount and GAE lambda of the reward advantage.
+        cost_gamma: discount gamma_c of the cost advantage (same GAE lambda).
+        cost_threshold: d of the state-wise constraint v_c(s) <= d.
+        violation_clip: (low, high): v_c(s) - d is clipped to [-low, high] in the multiplier loss,
+            which bounds how fast lambda(s) falls on safe states and rises on unsafe ones.
+        lambda_max: cap of lambda(s) (for the share-at-cap diagnostic; the network applies it).
+        samples_mc_entropy: Monte-Carlo samples for the entropy (TanhNormal has no closed form).
+        multiplier_loss_on_logit: take the multiplier loss on the pre-softplus logit (see module doc).
+    """
+
+    def __init__(
+        self,
+        actor_network: TensorDictModule,
+        critic_network: TensorDictModule,
+        cost_critic_network: TensorDictModule | None = None,
+        multiplier_network: TensorDictModule | None = None,
+        *,
+        constrained: bool = True,
+        clip_epsilon: float = 0.2,
+        entropy_coeff: float = 0.0,
+        gamma: float = 0.99,
+        gae_lambda: float = 0.95,
+        cost_gamma: float = 0.99,
+        cost_threshold: float = 0.0,
+        violation_clip: tuple[float, float] = (0.3, 100.0),
+        lambda_max: float = 50.0,
+        samples_mc_entropy: int = 1,
+        multiplier_loss_on_logit: bool = False,
+    ) -> None:
+        super().__init__(
+            actor_network, critic_network, clip_epsilon=clip_epsilon, entropy_bonus=True,
+            entropy_coeff=entropy_coeff, samples_mc_entropy=samples_mc_entropy, critic_coeff=1.0,
+            loss_critic_type="l2", normalize_advantage=False,
+        )
+        self.set_keys(sample_log_prob=LOG_PROB_KEY, value=VALUE_KEY)
+        self.make_value_estimator(gamma=gamma, lmbda=gae_lambda)  # GAE (TorchRL default estimator)
+        self.constrained = constrained
+        self.cost_threshold = cost_threshold
+        self.violation_clip = violation_clip
+        self.lambda_max = lambda_max
+        self.multiplier_loss_on_logit = multiplier_loss_on_logit
+        if constrained:
+            if cost_critic_network is None or multiplier_network is None:
+                raise ValueError("constrained=True needs cost_critic_network and multiplier_network")
+            self.cost_critic_network = cost_critic_network
+            self.multiplier_network = multiplier_network
+            # Second GAE over the cost signal: reads ("next", "cost"), writes cost_advantage / cost_value_target.
+            self.cost_value_estimator = GAE(gamma=cost_gamma, lmbda=gae_lambda, value_network=cost_critic_network)
+            self.cost_value_estimator.set_keys(
+                reward=COST_KEY, value=COST_VALUE_KEY, advantage=COST_ADVANTAGE_KEY,
+                value_target=COST_VALUE_TARGET_KEY,
+            )
+
+    @property
+    def out_keys(self) -> list[str]:
+        keys = ["loss_objective", "loss_critic", "loss_entropy", "entropy", "clip_fraction", "kl_approx"]
+        if self.constrained:
+            keys += ["loss_cost_critic", "loss_multiplier", "lambda_mean", "lambda_max", "lambda_share_at_max",
+                     "violation_share"]
+        return keys
+
+    @out_keys.setter
+    def out_keys(self, values) -> None:  # ClipPPOLoss's constructor assigns it
+        pass
+
+    @torch.no_grad()
+    def compute_advantages(self, batch: TensorDictBase) -> TensorDictBase:
+        """Write advantage / value_target (reward GAE) and, if constrained, the cost ones, in place."""
+        self.value_estimator(batch)
+        if self.constrained:
+            self.cost_value_estimator(batch)
+        return batch
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        td = tensordict.clone(False)
+        advantage = td.get(self.tensor_keys.advantage)
+        advantage = (advantage - advantage.mean()) / advantage.std().clamp_min(1e-8)
+
+        log_weight, dist, kl_approx, _ = self._log_weight(td, adv_shape=advantage.shape[:-1])
+        ratio = log_weight.exp()
+        clipped_ratio = log_weight.clamp(*self._clip_bounds).exp()
+        gain_reward = torch.minimum(ratio * advantage, clipped_ratio * advantage)
+
+        out = {}
+        if self.constrained:
+            cost_advantage = td.get(COST_ADVANTAGE_KEY)
+            cost_advantage = cost_advantage - cost_advantage.mean()
+            gain_cost = torch.maximum(ratio * cost_advantage, clipped_ratio * cost_advantage)
+            logit = self.multiplier_network.module.logit(td.get(self.multiplier_network.in_keys[0]))
+            multiplier = torch.nn.functional.softplus(logit).clamp(max=self.lambda_max)
+            lam = multiplier.detach()
+            out["loss_objective"] = (-(gain_reward - lam * gain_cost) / (1.0 + lam)).mean()
+
+            cost_value = self.cost_critic_network(td.select(*self.cost_critic_network.in_keys)).get(COST_VALUE_KEY)
+            out["loss_cost_critic"] = (cost_value - td.get(COST_VALUE_TARGET_KEY)).pow(2).mean()
+            violation = (cost_value.detach() - self.cost_threshold).clamp(-self.violation_clip[0],
+                                                                          self.violation_clip[1])
+            if self.multiplier_loss_on_logit:
+                at_bound = ((logit <= LOGIT_FLOOR) & (violation < 0)) | ((lam >= self.lambda_max) & (violation > 0))
+                out["loss_multiplier"] = -(torch.where(at_bound, logit.detach(), logit) * violation).mean()
+            else:
+                out["loss_multiplier"] = -(multiplier * violation).mean()
+            out["lambda_mean"] = lam.mean()
+            out["lambda_max"] = lam.max()
+            out["lambda_share_at_max"] = (lam >= self.lambda_max * (1.0 - 1e-6)).float().mean()
+            out["violation_share"] = (violation > 0).float().mean()
+        else:
+            out["loss_objective"] = (-gain_reward).mean()
+
+        entropy = self._get_entropy(dist, adv_shape=advantage.shape[:-1])
+        out["entropy"] = entropy.detach().mean()
+        out["loss_entropy"] = self._weighted_loss_entropy(entropy).mean()
+        loss_critic, _, _ = self.loss_critic(td)
+        out["loss_critic"] = loss_critic.mean()
+        out["clip_fraction"] = (log_weight.detach().clamp(*self._clip_bounds) != log_weight.detach()).float().mean()
+        out["kl_approx"] = kl_approx.detach().mean()
+        return TensorDict(out, batch_size=[])

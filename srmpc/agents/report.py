@@ -1,0 +1,40 @@
+"""Summaries of training runs from their ``metrics.csv`` (one row per iteration, written by the trainer)."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+
+def read_metrics(path: Path) -> list[dict[str, float]]:
+    """Rows of a trainer ``metrics.csv`` as floats (empty cells -> NaN)."""
+    with Path(path).open(newline="") as handle:
+        return [{k: float(v) if v != "" else math.nan for k, v in row.items()} for row in csv.DictReader(handle)]
+
+
+def summarize_training(rows: list[dict[str, float]], last_fraction: float = 0.05) -> dict[str, float]:
+    """Final performance over the last ``last_fraction`` of the frames (at least the last iteration).
+
+    ``return`` / ``cost_return`` / ``steps`` / ``vx``: means over the episodes that ended there (each
+    iteration's mean weighted by its number of finished episodes); ``cost_rate``: event costs per env
+    step there; ``frames``, ``wall_s``: totals of the run.
+    """
+    if not rows:
+        raise ValueError("no iterations in metrics")
+    final_frames = rows[-1]["frames"]
+    tail = [r for r in rows if r["frames"] > (1.0 - last_fraction) * final_frames] or rows[-1:]
+    summary = {"frames": int(final_frames), "wall_s": rows[-1]["wall_s"], "iterations": len(rows),
+               "last_fraction": last_fraction}
+    episodes = sum(r["episodes"] for r in tail if r["episodes"] > 0)
+    for key, column in (("return", "episode/return"), ("train_return", "episode/train_return"),
+                        ("cost_return", "episode/cost_return"),
+                        ("si_cost_return", "episode/si_cost_return"), ("steps", "episode/steps"),
+                        ("vx", "episode/vx")):
+        weighted = sum(r[column] * r["episodes"] for r in tail if r["episodes"] > 0)
+        summary[key] = weighted / episodes if episodes else math.nan
+    batch_frames = [r["frames"] - p["frames"] for p, r in zip([{"frames": 0.0}, *rows[:-1]], rows, strict=True)]
+    tail_frames = batch_frames[-len(tail):]
+    summary["cost_rate"] = sum(r["cost_rate"] * f for r, f in zip(tail, tail_frames, strict=True)) / sum(tail_frames)
+    summary["episodes"] = int(episodes)
+    return summary

@@ -1,0 +1,367 @@
+"""Training loop of PPO / PPO-L-SI over a batched TorchRL env (CleanRL layout, TorchRL parts).
+
+Per iteration:
+  1. collect ``frames_per_batch`` steps from the B envs with TorchRL's ``Collector`` (T = frames / B
+     steps per env; episodes continue across iterations, partial resets via "_reset");
+  2. episode bookkeeping: per-env running sums of r', event cost, SI cost, steps, vx; finished
+     episodes give the logged episode metrics;
+  3. two GAEs (reward and, if constrained, cost) under no_grad;
+  4. ``epochs`` passes of shuffled minibatches: actor + critics step on every minibatch; lambda(s)
+     steps during the first epoch of every ``multiplier_update_every``-th iteration (slow timescale);
+  5. NaN/Inf check of every loss term and parameter; metrics to MLflow; checkpoint every K iterations.
+
+The env must provide "observation" (B, obs_dim), a Bounded "action" spec, and in "next": "reward",
+"cost", "reward_prime", "event_cost", "vx", "done", "terminated", "truncated" (all (B, 1)).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.envs import EnvBase
+
+from srmpc.agents.checkpoint import POLICY_NAME, load_checkpoint, save_checkpoint, save_policy
+from srmpc.agents.hyperparameters import PPOHyperparameters
+from srmpc.agents.networks import COST_VALUE_KEY, VALUE_KEY, make_actor, make_multiplier, make_value
+from srmpc.agents.ppo_lsi_loss import PPOLSILoss
+
+METRICS_CSV = "metrics.csv"
+
+
+class NonFiniteError(RuntimeError):
+    """A loss term or a parameter became NaN/Inf; the last good checkpoint is kept untouched."""
+
+
+def build_loss(observation_dim: int, action_low: torch.Tensor, action_high: torch.Tensor,
+               hp: PPOHyperparameters) -> PPOLSILoss:
+    """Actor, critics, multiplier and the loss module that owns them."""
+    actor = make_actor(observation_dim, action_low, action_high, hp.hidden_sizes, hp.initial_std)
+    critic = make_value(observation_dim, hp.hidden_sizes, VALUE_KEY)
+    cost_critic = multiplier = None
+    if hp.constrained:
+        cost_critic = make_value(observation_dim, hp.hidden_sizes, COST_VALUE_KEY)
+        multiplier = make_multiplier(observation_dim, hp.hidden_sizes, hp.lambda_max, hp.initial_lambda)
+    return PPOLSILoss(
+        actor, critic, cost_critic, multiplier, constrained=hp.constrained, clip_epsilon=hp.clip_epsilon,
+        entropy_coeff=hp.entropy_coef, gamma=hp.gamma, gae_lambda=hp.gae_lambda, cost_gamma=hp.cost_gamma,
+        cost_threshold=hp.cost_threshold, violation_clip=(hp.violation_clip_low, hp.violation_clip_high),
+        lambda_max=hp.lambda_max, multiplier_loss_on_logit=hp.multiplier_loss_on_logit,
+    )
+
+
+def parameter_groups(loss: PPOLSILoss) -> dict[str, list[torch.nn.Parameter]]:
+    """Parameters per optimizer: actor, critics (v and v_c), multiplier."""
+    groups = {
+        "actor": list(loss.actor_network_params.values(True, True)),
+        "critic": list(loss.critic_network_params.values(True, True)),
+        "multiplier": [],
+    }
+    if loss.constrained:
+        groups["critic"] += list(loss.cost_critic_network.parameters())
+        groups["multiplier"] = list(loss.multiplier_network.parameters())
+    return groups
+
+
+@dataclass
+class EpisodeTracker:
+    """Per-env running sums over the current episode; finished episodes are appended to ``finished``."""
+
+    num_envs: int
+    sums: dict[str, torch.Tensor] = field(default_factory=dict)
+    finished: list[dict[str, float]] = field(default_factory=list)
+    total_event_cost: float = 0.0
+    total_steps: int = 0
+
+    KEYS = ("return", "train_return", "cost_return", "si_cost_return", "steps", "vx_sum")
+    """return: sum of r' (the paper's J_r); train_return: sum of the training reward r; cost_return: sum
+    of event costs (the paper's J_c); si_cost_return: sum of the SI cost c; steps; vx_sum -> mean vx."""
+
+    def __post_init__(self) -> None:
+        if not self.sums:
+            self.sums = {k: torch.zeros(self.num_envs, dtype=torch.float64) for k in self.KEYS}
+
+    def update(self, batch: TensorDictBase) -> list[dict[str, float]]:
+        """Consume a (B, T) batch; return the episodes that ended in it."""
+        nxt = batch.get("next")
+        columns = {
+            "return": nxt.get("reward_prime"), "train_return": nxt.get("reward"), "cost_return": nxt.get("event_cost"),
+            "si_cost_return": nxt.get("cost"), "steps": torch.ones_like(nxt.get("reward_prime")),
+            "vx_sum": nxt.get("vx"),
+        }
+        columns = {k: v.reshape(self.num_envs, -1).double() for k, v in columns.items()}
+        done = nxt.get("done").reshape(self.num_envs, -1)
+        self.total_event_cost += float(columns["cost_return"].sum())
+        self.total_steps += done.numel()
+        ended: list[dict[str, float]] = []
+        for t in range(done.shape[1]):
+            for k in self.KEYS:
+                self.sums[k] += columns[k][:, t]
+            for i in done[:, t].nonzero().flatten().tolist():
+                episode = {k: float(self.sums[k][i]) for k in self.KEYS}
+                episode["vx"] = episode.pop("vx_sum") / max(episode["steps"], 1.0)
+                ended.append(episode)
+                for k in self.KEYS:
+                    self.sums[k][i] = 0.0
+        self.finished.extend(ended)
+        return ended
+
+    def state(self) -> dict[str, Any]:
+        return {"sums": {k: v.clone() for k, v in self.sums.items()}, "total_event_cost": self.total_event_cost,
+                "total_steps": self.total_steps}
+
+    def load(self, state: dict[str, Any]) -> None:
+        self.sums = {k: v.clone() for k, v in state["sums"].items()}
+        self.total_event_cost = state["total_event_cost"]
+        self.total_steps = state["total_steps"]
+
+
+def env_runtime_state(env: EnvBase) -> Any:
+    """The env's full simulation state, or None when it cannot give one.
+
+    Envs may implement ``runtime_state()`` / ``load_runtime_state(state)``; for
+    ``srmpc.sim.torchrl_env.TwinHighwayEnv`` the simulator's public ``snapshot()`` (every scene and
+    its random stream) plus the env's per-scene done flags are used.
+    """
+    if hasattr(env, "runtime_state"):
+        return env.runtime_state()
+    simulator = getattr(env, "simulator", None)
+    if simulator is not None and hasattr(simulator, "snapshot"):
+        done = getattr(env, "_done", None)
+        return {"simulator": simulator.snapshot(), "done": None if done is None else done.copy()}
+    return None
+
+
+def load_env_runtime_state(env: EnvBase, state: Any) -> bool:
+    """Put a state from :func:`env_runtime_state` back; False when the env cannot take it."""
+    if state is None:
+        return False
+    if hasattr(env, "load_runtime_state"):
+        env.load_runtime_state(state)
+        return True
+    simulator = getattr(env, "simulator", None)
+    if simulator is not None and hasattr(simulator, "restore") and "simulator" in state:
+        simulator.restore(state["simulator"])
+        if state["done"] is not None:
+            env._done[...] = state["done"]
+        return True
+    return False
+
+
+class Trainer:
+    """PPO / PPO-L-SI trainer. ``run`` is an :class:`srmpc.tracking.Run` (or anything with
+    ``log_metrics(dict, step)``); ``output_dir`` receives ``last.pt``, ``policy.pt`` and ``metrics.csv``.
+    A ``last.pt`` already in ``output_dir`` is resumed from."""
+
+    def __init__(self, env: EnvBase, hp: PPOHyperparameters, output_dir: Path, run: Any = None,
+                 progress: bool = True) -> None:
+        if env.batch_size != torch.Size([hp.num_envs]):
+            raise ValueError(f"env batch_size {tuple(env.batch_size)} != num_envs={hp.num_envs}")
+        torch.set_num_threads(hp.num_threads)
+        torch.manual_seed(hp.seed)
+        self.env, self.hp, self.output_dir, self.run, self.progress = env, hp, Path(output_dir), run, progress
+        self.output_dir.mkdir(parents=True, exist_ok=True)
+        env.set_seed(hp.seed)
+        action_spec = env.full_action_spec["action"]
+        self.observation_dim = env.full_observation_spec["observation"].shape[-1]
+        self.action_low = action_spec.space.low.reshape(-1, action_spec.shape[-1])[0].clone()
+        self.action_high = action_spec.space.high.reshape(-1, action_spec.shape[-1])[0].clone()
+        self.loss = build_loss(self.observation_dim, self.action_low, self.action_high, hp)
+        groups = parameter_groups(self.loss)
+        self.optimizers = {
+            "actor": torch.optim.Adam(groups["actor"], lr=hp.actor_lr, eps=1e-5),
+            "critic": torch.optim.Adam(groups["critic"], lr=hp.critic_lr, eps=1e-5),
+        }
+        if hp.constrained:
+            self.optimizers["multiplier"] = torch.optim.Adam(groups["multiplier"], lr=hp.multiplier_lr, eps=1e-5)
+        self.groups = groups
+        self.shuffle = torch.Generator().manual_seed(hp.seed)
+        self.episodes = EpisodeTracker(hp.num_envs)
+        self.iteration = 0
+        self.frames = 0
+        self.wall_s = 0.0
+        self.collector = Collector(env, self.loss.actor_network, frames_per_batch=hp.frames_per_batch,
+                                   total_frames=-1, auto_register_policy_transforms=False)
+        self._batches = iter(self.collector)
+        self.resumed_from: int | None = None
+        checkpoint = load_checkpoint(self.output_dir)
+        if checkpoint is not None:
+            self.load_state(checkpoint)
+            self.resumed_from = self.iteration
+        else:
+            torch.manual_seed(hp.seed)  # the collector's construction may have drawn numbers
+        self._snapshot = self.state()
+
+    # ----------------------------------------------------------------------------------------- state
+    def state(self) -> dict[str, Any]:
+        """Everything a resume needs (see srmpc.agents.checkpoint)."""
+        env_state = env_runtime_state(self.env)
+        return copy.deepcopy({
+            "iteration": self.iteration, "frames": self.frames, "wall_s": self.wall_s,
+            "loss": self.loss.state_dict(),
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+            "torch_rng": torch.get_rng_state(), "shuffle_rng": self.shuffle.get_state(),
+            "carrier": self.collector._carrier.clone(),  # TorchRL keeps the current observations here
+            "env": env_state, "episodes": self.episodes.state(),
+            "hyperparameters": asdict(self.hp),
+        })
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self.iteration, self.frames, self.wall_s = state["iteration"], state["frames"], state["wall_s"]
+        self.loss.load_state_dict(state["loss"])
+        for k, optimizer in self.optimizers.items():
+            optimizer.load_state_dict(state["optimizers"][k])
+        torch.set_rng_state(state["torch_rng"])
+        self.shuffle.set_state(state["shuffle_rng"])
+        if load_env_runtime_state(self.env, state["env"]):
+            self.collector._carrier.update(state["carrier"])
+            self.episodes.load(state["episodes"])
+        else:  # the env cannot restore its state: episodes restart from fresh resets
+            self.episodes.load(state["episodes"])
+            self.episodes.sums = {k: torch.zeros_like(v) for k, v in self.episodes.sums.items()}
+
+    def save(self, state: dict[str, Any] | None = None) -> Path:
+        state = self._snapshot if state is None else state
+        path = save_checkpoint(state, self.output_dir)
+        prefix = "actor_network_params."
+        actor_state = {k[len(prefix):]: v for k, v in state["loss"].items() if k.startswith(prefix)}
+        save_policy(actor_state, {"observation_dim": self.observation_dim, "action_low": self.action_low,
+                                  "action_high": self.action_high, "hidden_sizes": list(self.hp.hidden_sizes),
+                                  "iteration": state["iteration"], "frames": state["frames"],
+                                  "name": self.hp.name}, self.output_dir / POLICY_NAME)
+        return path
+
+    # ----------------------------------------------------------------------------------------- update
+    def _check_finite(self, named: dict[str, torch.Tensor], what: str) -> None:
+        for name, value in named.items():
+            if not torch.isfinite(value).all():
+                raise NonFiniteError(
+                    f"{what} '{name}' is NaN/Inf at iteration {self.iteration + 1}; training stopped. "
+                    f"The last good checkpoint ({self.output_dir / 'last.pt'}, iteration "
+                    f"{self._snapshot['iteration']}) is kept."
+                )
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """Advantages, then ``epochs`` passes of minibatch SGD; returns minibatch-averaged loss terms."""
+        hp = self.hp
+        self.loss.compute_advantages(batch)
+        flat = batch.reshape(-1)
+        update_multiplier = hp.constrained and (self.iteration + 1) % hp.multiplier_update_every == 0
+        sums: dict[str, float] = {}
+        count = 0
+        for epoch in range(hp.epochs):
+            order = torch.randperm(flat.shape[0], generator=self.shuffle)
+            for start in range(0, flat.shape[0], hp.minibatch_size):
+                terms = self.loss(flat[order[start:start + hp.minibatch_size]])
+                self._check_finite({k: v for k, v in terms.items() if k.startswith("loss_")}, "loss term")
+                total = sum(v for k, v in terms.items() if k.startswith("loss_"))
+                for optimizer in self.optimizers.values():
+                    optimizer.zero_grad(set_to_none=True)
+                total.backward()
+                torch.nn.utils.clip_grad_norm_(self.groups["actor"], hp.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(self.groups["critic"], hp.max_grad_norm)
+                self.optimizers["actor"].step()
+                self.optimizers["critic"].step()
+                if update_multiplier and epoch == 0:
+                    self.optimizers["multiplier"].step()
+                for k, v in terms.items():
+                    sums[k] = sums.get(k, 0.0) + float(v.detach())
+                count += 1
+        self._check_finite({k: v for k, v in self.loss.named_parameters()}, "parameter")
+        return {k: v / count for k, v in sums.items()}
+
+    # ----------------------------------------------------------------------------------------- loop
+    def train(self, max_iterations: int | None = None, on_iteration: Callable[[dict], None] | None = None) -> dict:
+        """Train until ``hp.iterations`` (or ``max_iterations`` more iterations); return the last metrics."""
+        hp = self.hp
+        stop = hp.iterations if max_iterations is None else min(hp.iterations, self.iteration + max_iterations)
+        csv_path = self.output_dir / METRICS_CSV
+        self._truncate_csv(csv_path)
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=hp.iterations * hp.frames_per_batch, initial=self.frames, unit="step",
+                       desc=f"train {hp.name}", unit_scale=True)
+        metrics: dict[str, float] = {}
+        try:
+            while self.iteration < stop:
+                started = time.perf_counter()
+                batch = next(self._batches)
+                collect_s = time.perf_counter() - started
+                ended = self.episodes.update(batch)
+                losses = self.update(batch)
+                self.iteration += 1
+                self.frames += batch.numel()
+                elapsed = time.perf_counter() - started
+                self.wall_s += elapsed
+                metrics = self._metrics(batch, ended, losses, collect_s, elapsed)
+                self._snapshot = self.state()
+                self._append_csv(csv_path, metrics)
+                if self.run is not None:
+                    self.run.log_metrics(metrics, step=self.frames)
+                if self.iteration % hp.checkpoint_every == 0 or self.iteration == stop:
+                    self.save()
+                if on_iteration is not None:
+                    on_iteration(metrics)
+                if bar is not None:
+                    bar.update(batch.numel())
+                    bar.set_postfix(ret=f"{metrics.get('episode/return', math.nan):.1f}",
+                                    cost_rate=f"{metrics['cost_rate']:.4f}")
+        except (KeyboardInterrupt, SystemExit):
+            self.save()  # the last completed iteration; the run is then marked FAILED by the caller
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        return metrics
+
+    def close(self) -> None:
+        self.collector.shutdown()
+
+    def _metrics(self, batch: TensorDictBase, ended: list[dict], losses: dict[str, float], collect_s: float,
+                 elapsed_s: float) -> dict[str, float]:
+        nxt = batch.get("next")
+        metrics = {
+            "iteration": float(self.iteration), "frames": float(self.frames), "wall_s": self.wall_s,
+            "env_steps_per_s": batch.numel() / elapsed_s, "collect_s": collect_s,
+            "cost_rate": float(nxt.get("event_cost").sum()) / batch.numel(),
+            "cost_rate_cumulative": self.episodes.total_event_cost / max(self.episodes.total_steps, 1),
+            "step/reward": float(nxt.get("reward").mean()), "step/si_cost": float(nxt.get("cost").mean()),
+            "step/vx": float(nxt.get("vx").mean()), "episodes": float(len(ended)),
+        }
+        if ended:
+            for key in ("return", "train_return", "cost_return", "si_cost_return", "steps", "vx"):
+                metrics[f"episode/{key}"] = sum(e[key] for e in ended) / len(ended)
+        metrics.update({f"train/{k}": v for k, v in losses.items()})
+        return metrics
+
+    CSV_COLUMNS = ("iteration", "frames", "wall_s", "episodes", "episode/return", "episode/train_return",
+                   "episode/cost_return", "episode/si_cost_return", "episode/steps", "episode/vx", "cost_rate",
+                   "step/reward", "env_steps_per_s")
+
+    def _truncate_csv(self, path: Path) -> None:
+        """Keep the rows up to the resumed iteration (a crash may have left later ones)."""
+        rows = []
+        if path.exists():
+            with path.open(newline="") as handle:
+                rows = [r for r in csv.DictReader(handle) if r.get("iteration") and
+                        float(r["iteration"]) <= self.iteration]
+        with path.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=self.CSV_COLUMNS)
+            writer.writeheader()
+            writer.writerows(rows)
+
+    def _append_csv(self, path: Path, metrics: dict[str, float]) -> None:
+        with path.open("a", newline="") as handle:
+            csv.DictWriter(handle, fieldnames=self.CSV_COLUMNS).writerow(
+                {k: metrics.get(k, "") for k in self.CSV_COLUMNS})

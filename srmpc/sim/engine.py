@@ -1,0 +1,233 @@
+"""One control step of a scene, and its batched drivers (serial, and over threads with prange).
+
+A control step replicates ``SrmpcHighwayEnv.step``:
+
+1. the ego's physical action goes through highway-env's action round trip
+   (:func:`~srmpc.sim.vehicle.ego_control`) and is held for the whole step;
+2. ``substeps`` times (``AbstractEnv._simulate``): every IDM vehicle acts (leader, IDM
+   acceleration, lane-following steering; crashed vehicles keep their action), every vehicle
+   integrates one step of dt (:func:`~srmpc.sim.vehicle.integrate`), then every pair is checked
+   for collision in road order (:func:`~srmpc.sim.collision.handle_collisions`);
+3. the scenario's measurement: the 30-float observation, phi(s'), r', r = exp(r'/scale),
+   c = max(phi(s') - max(phi(s) - eta, 0), floor), the event cost, termination (the ego crashed,
+   or its centre left its closest lane) and truncation (``episode_steps`` control steps).
+
+The observation, safety index and reward are the scenario's own numba kernels
+(``srmpc.scenario.observation``, ``safety_index``, ``reward``), called on the twin's arrays.
+"""
+
+from collections import namedtuple
+
+import numpy as np
+from numba import njit, prange
+
+from srmpc.scenario.observation import (
+    OBSERVATION_SCALE,
+    OBSERVATION_SIZE,
+    SLOT_COUNT,
+    find_observed_vehicles,
+    raw_observation,
+)
+from srmpc.scenario.reward import reward_prime, training_reward
+from srmpc.scenario.safety_index import safety_index, safety_index_cost
+from srmpc.sim.collision import handle_collisions
+from srmpc.sim.constants import MAX_STEERING_ANGLE, TERMINATION_COLLISION, TERMINATION_NONE, TERMINATION_OFFROAD
+from srmpc.sim.idm import all_leaders, clip_idm_acceleration, idm_acceleration, steering_control
+from srmpc.sim.spawning import spawn_scene
+from srmpc.sim.state import ACCELERATION, HEADING, SPEED, STEERING, X, Y
+from srmpc.sim.vehicle import ego_control, integrate, on_lane
+
+StepOutputs = namedtuple(
+    "StepOutputs",
+    [
+        "observation",  # (B, 30) float32, normalized (after an auto-reset: the new episode's)
+        "final_observation",  # (B, 30) float32, the step's own observation (before any auto-reset)
+        "reward",  # (B,) float64 r
+        "reward_prime",  # (B,) float64 r'
+        "cost",  # (B,) float64 SI cost c
+        "event_cost",  # (B,) float64, 1 on collision or road exit
+        "vx",  # (B,) float64 ego longitudinal speed [m/s]
+        "terminated",  # (B,) bool
+        "truncated",  # (B,) bool
+        "reason",  # (B,) int64 TERMINATION_*
+    ],
+)
+"""Output arrays of a batched step (allocated once by the caller, overwritten in place)."""
+
+
+@njit(cache=True)
+def road_ranks(ego_rank: int, n: int, rank: np.ndarray) -> None:
+    """rank[k] = road-order position of storage index k (the ego is stored last)."""
+    for k in range(n - 1):
+        rank[k] = k + 1 if k >= ego_rank else k
+    rank[n - 1] = ego_rank
+
+
+@njit(cache=True)
+def sort_by_x(vehicles: np.ndarray, order: np.ndarray, rank: np.ndarray, position: np.ndarray) -> None:
+    """Insertion-sort ``order`` by (x, road rank), O(N) when nearly sorted; position = its inverse."""
+    n = order.shape[0]
+    for p in range(1, n):
+        k = order[p]
+        x_k = vehicles[k, X]
+        rank_k = rank[k]
+        q = p
+        while q > 0:
+            j = order[q - 1]
+            x_j = vehicles[j, X]
+            if x_j > x_k or (x_j == x_k and rank[j] > rank_k):
+                order[q] = j
+                q -= 1
+            else:
+                break
+        order[q] = k
+    for p in range(n):
+        position[order[p]] = p
+
+
+@njit(cache=True)
+def measure(s, c, b: int, observation: np.ndarray, slot_vehicle: np.ndarray, raw: np.ndarray) -> float:
+    """Write scene b's normalized float32 observation into ``observation`` (30,); return phi."""
+    n = c.vehicles
+    ego = s.vehicles[b, n - 1]
+    others = s.vehicles[b, : n - 1]
+    find_observed_vehicles(ego, others, c.perception_range, slot_vehicle)
+    raw_observation(ego, others, slot_vehicle, c.perception_range, raw)
+    for i in range(OBSERVATION_SIZE):
+        observation[i] = np.float32(raw[i] / OBSERVATION_SCALE[i])
+    return safety_index(ego, others, slot_vehicle, c.si_sigma, c.si_d_min, c.si_edge_d_min, c.si_n, c.si_k)
+
+
+@njit(cache=True)
+def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
+    """Advance scene b by one control step (``substeps`` integration steps) with the ego's action."""
+    n = c.vehicles
+    ego = n - 1
+    vehicles = s.vehicles[b]
+    control = s.control[b]
+    crashed = s.crashed[b]
+    impact = s.impact[b]
+    has_impact = s.has_impact[b]
+    lane = s.lane[b]
+    target_lane = s.target_lane[b]
+    order = s.order[b]
+    rank = np.empty(n, dtype=np.int64)
+    position = np.empty(n, dtype=np.int64)
+    pair_keys = np.empty(n * (n - 1) // 2 + 1, dtype=np.int64)
+    poly_a = np.empty((5, 2))
+    poly_b = np.empty((5, 2))
+    lane_leader = np.empty(n, dtype=np.int64)
+    target_leader = np.empty(n, dtype=np.int64)
+    road_ranks(s.ego_rank[b], n, rank)
+    held_steering, held_acceleration = ego_control(
+        steering, acceleration, c.steering_max, c.acceleration_min, c.acceleration_max
+    )
+    control[ego, STEERING] = held_steering
+    control[ego, ACCELERATION] = held_acceleration
+    for _ in range(c.substeps):
+        sort_by_x(vehicles, order, rank, position)
+        all_leaders(
+            vehicles, order, position, lane, target_lane, c.lane_count, c.lane_width, c.road_length,
+            lane_leader, target_leader,
+        )
+        for k in range(n - 1):  # IDMVehicle.act
+            if crashed[k]:
+                continue
+            x, y = vehicles[k, X], vehicles[k, Y]
+            heading, speed = vehicles[k, HEADING], vehicles[k, SPEED]
+            steer = steering_control(x, y, heading, speed, target_lane[k], c.lane_width)
+            steer = min(max(steer, -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
+            target_speed, delta = s.target_speed[b, k], s.delta[b, k]
+            accel = idm_acceleration(vehicles, k, lane_leader[k], target_speed, delta, c.speed_limit)
+            if lane[k] != target_lane[k]:  # "when changing lane, check both current and target lanes"
+                accel = min(accel, idm_acceleration(vehicles, k, target_leader[k], target_speed, delta, c.speed_limit))
+            control[k, STEERING] = steer
+            control[k, ACCELERATION] = clip_idm_acceleration(accel)
+        for k in range(n):
+            integrate(
+                vehicles, control, crashed, impact, has_impact, lane, k, c.dt, c.lane_count, c.lane_width, c.road_length
+            )
+        sort_by_x(vehicles, order, rank, position)
+        handle_collisions(vehicles, crashed, impact, has_impact, order, rank, c.dt, pair_keys, poly_a, poly_b)
+    s.steps[b] += 1
+
+
+@njit(cache=True)
+def step_scene(s, c, out, actions: np.ndarray, b: int, auto_reset: bool) -> None:
+    """Control step of scene b with ``actions[b]`` = (delta [rad], a [m/s^2]); fill ``out[.][b]``."""
+    n = c.vehicles
+    ego = n - 1
+    simulate(s, c, b, actions[b, 0], actions[b, 1])
+    slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
+    raw = np.empty(OBSERVATION_SIZE)
+    phi = measure(s, c, b, out.observation[b], slot_vehicle, raw)
+    x, y = s.vehicles[b, ego, X], s.vehicles[b, ego, Y]
+    heading, speed = s.vehicles[b, ego, HEADING], s.vehicles[b, ego, SPEED]
+    vx = speed * np.cos(heading)
+    r_prime = reward_prime(vx, y, c.vx_ref, c.y_ref, c.speed_weight)
+    out.reward[b] = training_reward(r_prime, c.reward_scale)
+    out.reward_prime[b] = r_prime
+    out.cost[b] = safety_index_cost(s.phi[b], phi, c.si_eta, c.si_cost_floor)
+    out.vx[b] = vx
+    s.phi[b] = phi
+    crashed = s.crashed[b, ego]
+    offroad = not on_lane(x, y, s.lane[b, ego], c.lane_width, c.road_length, 0.0)
+    out.terminated[b] = crashed or offroad
+    out.truncated[b] = s.steps[b] >= c.episode_steps
+    out.event_cost[b] = 1.0 if (crashed or offroad) else 0.0
+    out.reason[b] = TERMINATION_COLLISION if crashed else (TERMINATION_OFFROAD if offroad else TERMINATION_NONE)
+    if auto_reset:
+        out.final_observation[b, :] = out.observation[b, :]
+        if out.terminated[b] or out.truncated[b]:
+            spawn_scene(s, c, b)
+            s.phi[b] = measure(s, c, b, out.observation[b], slot_vehicle, raw)
+
+
+@njit(cache=True)
+def step_serial(s, c, out, actions: np.ndarray, auto_reset: bool) -> None:
+    """All scenes, one after the other (one thread)."""
+    for b in range(s.vehicles.shape[0]):
+        step_scene(s, c, out, actions, b, auto_reset)
+
+
+@njit(cache=True, parallel=True)
+def step_parallel(s, c, out, actions: np.ndarray, auto_reset: bool) -> None:
+    """All scenes, spread over numba's threads (``numba.set_num_threads``)."""
+    for b in prange(s.vehicles.shape[0]):
+        step_scene(s, c, out, actions, b, auto_reset)
+
+
+@njit(cache=True)
+def reset_scenes(s, c, mask: np.ndarray, observation: np.ndarray) -> None:
+    """Spawn a fresh scene wherever ``mask`` is True; write its observation and phi."""
+    slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
+    raw = np.empty(OBSERVATION_SIZE)
+    for b in range(s.vehicles.shape[0]):
+        if mask[b]:
+            spawn_scene(s, c, b)
+            s.phi[b] = measure(s, c, b, observation[b], slot_vehicle, raw)
+
+
+@njit(cache=True)
+def observe(s, c, observation: np.ndarray, phi: np.ndarray) -> None:
+    """Observation (B, 30) and phi (B,) of the current states, without stepping."""
+    slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
+    raw = np.empty(OBSERVATION_SIZE)
+    for b in range(s.vehicles.shape[0]):
+        phi[b] = measure(s, c, b, observation[b], slot_vehicle, raw)
+
+
+def allocate_outputs(scenes: int) -> StepOutputs:
+    """Fresh output arrays for ``scenes`` scenes."""
+    return StepOutputs(
+        observation=np.zeros((scenes, OBSERVATION_SIZE), dtype=np.float32),
+        final_observation=np.zeros((scenes, OBSERVATION_SIZE), dtype=np.float32),
+        reward=np.zeros(scenes),
+        reward_prime=np.zeros(scenes),
+        cost=np.zeros(scenes),
+        event_cost=np.zeros(scenes),
+        vx=np.zeros(scenes),
+        terminated=np.zeros(scenes, dtype=np.bool_),
+        truncated=np.zeros(scenes, dtype=np.bool_),
+        reason=np.zeros(scenes, dtype=np.int64),
+    )

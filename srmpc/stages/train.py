@@ -1,0 +1,77 @@
+"""``stage=train``: train ``agent`` (PPO or PPO-L-SI) with checkpoints and resume, tracked in MLflow.
+
+Files in the output directory (``agent.output_dir``, default ``results/training/<agent.name>``):
+``config.yaml`` (agent + scenario config the run belongs to; another config refuses to write
+there), ``last.pt`` (checkpoint), ``policy.pt`` (the actor alone), ``metrics.csv`` (one row per
+iteration) and ``summary.json`` (the last 5% of training, written at the end).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from srmpc.agents.checkpoint import CHECKPOINT_NAME, POLICY_NAME
+from srmpc.agents.hyperparameters import TrainTask
+from srmpc.agents.report import read_metrics, summarize_training
+from srmpc.config.compose import ConfigError
+from srmpc.config.schema import Config
+from srmpc.stages.evaluate import atomic_write_text
+from srmpc.tracking import Run
+
+RESUMABLE_OVERRIDES = ("total_frames", "checkpoint_every", "output_dir", "num_threads", "sim_threads")
+"""Agent fields that may change between an interrupted run and its resume."""
+
+
+def training_dir(config: Config) -> Path:
+    return Path(config.agent.output_dir) if config.agent.output_dir else Path("results/training") / config.agent.name
+
+
+def make_training_env(config: Config):
+    """The batched TorchRL env of ``agent.task``."""
+    hp = config.agent
+    if hp.task is TrainTask.toy:
+        from srmpc.agents.toy_env import ToyConstrainedEnv
+
+        return ToyConstrainedEnv(hp.num_envs, seed=hp.seed)
+    try:
+        from srmpc.sim.torchrl_env import TwinHighwayEnv
+    except ImportError as error:
+        raise ConfigError(f"agent.task={hp.task.value}: the batched simulator is not available ({error})") from error
+    return TwinHighwayEnv(config.scenario, num_envs=hp.num_envs, seed=hp.seed, threads=hp.sim_threads)
+
+
+def _identity_yaml(cfg_container: dict) -> str:
+    agent = {k: v for k, v in cfg_container["agent"].items() if k not in RESUMABLE_OVERRIDES}
+    return OmegaConf.to_yaml({"agent": agent, "scenario": cfg_container["scenario"]})
+
+
+def run_training(config: Config, cfg_container: dict, run: Run, progress: bool = True) -> dict:
+    """Train (or resume) into ``training_dir(config)``; returns the summary written to summary.json."""
+    from srmpc.agents.trainer import METRICS_CSV, Trainer
+
+    output_dir = training_dir(config)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    identity = _identity_yaml(cfg_container)
+    config_path = output_dir / "config.yaml"
+    if config_path.exists() and (output_dir / CHECKPOINT_NAME).exists() and config_path.read_text() != identity:
+        raise ConfigError(f"agent.output_dir={output_dir}: holds a run of a different config ({config_path}); "
+                          "choose another directory")
+    atomic_write_text(config_path, identity)
+    env = make_training_env(config)
+    trainer = Trainer(env, config.agent, output_dir, run, progress=progress)
+    if trainer.resumed_from is not None:
+        run.set_tags({"resumed_from_iteration": str(trainer.resumed_from)})
+    try:
+        trainer.train()
+    finally:
+        trainer.close()
+    summary = summarize_training(read_metrics(output_dir / METRICS_CSV))
+    summary["name"] = config.agent.name
+    atomic_write_text(output_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+    run.log_metrics({f"final/{k}": v for k, v in summary.items() if isinstance(v, int | float)})
+    for name in (POLICY_NAME, METRICS_CSV, "summary.json"):
+        run.log_artifact(output_dir / name)
+    return summary
