@@ -11,7 +11,7 @@ from srmpc.sim.constants import LANE_END_MARGIN, MAX_SPEED, MIN_SPEED, VEHICLE_L
 from srmpc.sim.state import ACCELERATION, HEADING, SPEED, STEERING, X, Y
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wrap_to_pi(angle: float) -> float:
     """((angle + pi) mod 2 pi) - pi, highway-env's ``utils.wrap_to_pi``.
 
@@ -23,7 +23,7 @@ def wrap_to_pi(angle: float) -> float:
     return shifted - np.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def closest_lane_index(
     x: float, y: float, heading: float, lane_count: int, lane_width: float, road_length: float
 ) -> int:
@@ -45,7 +45,7 @@ def closest_lane_index(
     return best_lane
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def on_lane(x: float, y: float, lane: int, lane_width: float, road_length: float, margin: float) -> bool:
     """``AbstractLane.on_lane``: |y - y_lane| <= width/2 + margin and -5 <= x < L + 5 [m]."""
     return abs(y - lane * lane_width) <= lane_width / 2 + margin and (
@@ -53,7 +53,7 @@ def on_lane(x: float, y: float, lane: int, lane_width: float, road_length: float
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ego_control(
     steering: float, acceleration: float, steering_max: float, acceleration_min: float, acceleration_max: float
 ) -> tuple[float, float]:
@@ -75,7 +75,7 @@ def ego_control(
     return held_steering, held_acceleration
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integrate(
     vehicles: np.ndarray,
     control: np.ndarray,
