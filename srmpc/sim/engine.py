@@ -35,7 +35,7 @@ from srmpc.sim.constants import MAX_STEERING_ANGLE, TERMINATION_COLLISION, TERMI
 from srmpc.sim.idm import all_leaders, clip_idm_acceleration, idm_acceleration, steering_control
 from srmpc.sim.spawning import spawn_scene
 from srmpc.sim.state import ACCELERATION, HEADING, SPEED, STEERING, X, Y
-from srmpc.sim.vehicle import ego_control, integrate, on_lane
+from srmpc.sim.vehicle import apply_impacts, ego_control, integrate, on_lane
 
 StepOutputs = namedtuple(
     "StepOutputs",
@@ -144,9 +144,8 @@ def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
             control[k, STEERING] = steer
             control[k, ACCELERATION] = clip_idm_acceleration(accel)
         for k in range(n):
-            integrate(
-                vehicles, control, crashed, impact, has_impact, lane, k, c.dt, c.lane_count, c.lane_width, c.road_length
-            )
+            integrate(vehicles, control, crashed, lane, k, c.dt, c.lane_count, c.lane_width, c.road_length)
+        apply_impacts(vehicles, crashed, impact, has_impact, lane, c.lane_count, c.lane_width, c.road_length)
         sort_by_x(vehicles, order, rank, position)
         handle_collisions(vehicles, crashed, impact, has_impact, order, rank, c.dt, pair_keys, poly_a, poly_b)
     s.steps[b] += 1
