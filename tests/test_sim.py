@@ -206,3 +206,19 @@ def test_hand_built_scenes_match_highway_env(name):
         np.testing.assert_array_equal(twin.state.crashed[0], crashed)
         assert bool(result.terminated[0]) == terminated and result.termination(0) == info["termination"]
         assert result.cost[0] == pytest.approx(info["cost"], abs=1e-9)
+
+
+def test_copy_of_several_highway_env_scenes_steps_each_like_its_source():
+    envs = [make_env(mean_spawn_gap_m=gap) for gap in (25.0, 15.0, 20.0)]
+    for seed, env in enumerate(envs):
+        env.reset(seed=seed)
+    twin = TwinSimulator.from_highway_env(envs, threads=1)
+    rng = np.random.default_rng(5)
+    for step in range(15):
+        actions = _actions(rng, 3, 0.005)
+        for b, env in enumerate(envs):
+            env.step(actions[b])
+        twin.step(actions)
+        for b, env in enumerate(envs):
+            states, _ = vehicle_table(env)
+            np.testing.assert_array_equal(twin.state.vehicles[b], states, err_msg=f"scene {b}, step {step}")

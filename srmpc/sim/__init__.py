@@ -1,6 +1,7 @@
 """A batched twin of ``srmpc/Highway-v0``: B independent scenes stepped at once by numba kernels.
 
 Modules:
+- :mod:`~srmpc.sim.jit_cache`: drops numba's cached machine code when any kernel source changed.
 - :mod:`~srmpc.sim.constants`: the scenario's numbers as a numba-friendly named tuple.
 - :mod:`~srmpc.sim.state`: the float64 state of B scenes (structure of arrays), snapshot/restore.
 - :mod:`~srmpc.sim.random`: a counter-free splitmix64 generator, one stream per scene.
@@ -17,7 +18,11 @@ Modules:
 - :mod:`~srmpc.sim.vector_env`: a gymnasium ``VectorEnv`` face.
 """
 
-from srmpc.sim.simulator import StepResult, TwinSimulator
-from srmpc.sim.state import SceneState
+from srmpc.sim.jit_cache import drop_stale_numba_cache
+
+drop_stale_numba_cache()  # before any kernel module is compiled or loaded from the cache
+
+from srmpc.sim.simulator import StepResult, TwinSimulator  # noqa: E402
+from srmpc.sim.state import SceneState  # noqa: E402
 
 __all__ = ["SceneState", "StepResult", "TwinSimulator"]

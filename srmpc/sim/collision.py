@@ -36,7 +36,7 @@ SWEEP_MARGIN = 1e-6
 """Slack [m] on the sweep bound, so that it never drops a pair the exact pre-check would keep."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def polygon(x: float, y: float, heading: float, out: np.ndarray) -> None:
     """Corners (5, 2) of the rotated rectangle, first corner repeated (``RoadObject.polygon``)."""
     c = np.cos(heading)
@@ -50,7 +50,7 @@ def polygon(x: float, y: float, heading: float, out: np.ndarray) -> None:
     out[4, 1] = out[0, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _project(points: np.ndarray, nx: float, ny: float) -> tuple[float, float]:
     low = points[0, 0] * nx + points[0, 1] * ny
     high = low
@@ -63,13 +63,13 @@ def _project(points: np.ndarray, nx: float, ny: float) -> tuple[float, float]:
     return low, high
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _interval_distance(min_a: float, max_a: float, min_b: float, max_b: float) -> float:
     """Gap between [min_a, max_a] and [min_b, max_b], negative when they overlap."""
     return min_b - max_a if min_a < min_b else min_a - max_b
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def polygons_intersecting(
     a: np.ndarray, b: np.ndarray, displacement_x: float, displacement_y: float
 ) -> tuple[bool, bool, float, float]:
@@ -117,7 +117,7 @@ def polygons_intersecting(
     return intersecting, False, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def handle_pair(
     vehicles: np.ndarray,
     crashed: np.ndarray,
@@ -155,7 +155,7 @@ def handle_pair(
         crashed[j] = True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def handle_collisions(
     vehicles: np.ndarray,
     crashed: np.ndarray,

@@ -35,7 +35,7 @@ from srmpc.sim.constants import MAX_STEERING_ANGLE, TERMINATION_COLLISION, TERMI
 from srmpc.sim.idm import all_leaders, clip_idm_acceleration, idm_acceleration, steering_control
 from srmpc.sim.spawning import spawn_scene
 from srmpc.sim.state import ACCELERATION, HEADING, SPEED, STEERING, X, Y
-from srmpc.sim.vehicle import ego_control, integrate, on_lane
+from srmpc.sim.vehicle import apply_impacts, ego_control, integrate, on_lane
 
 StepOutputs = namedtuple(
     "StepOutputs",
@@ -55,7 +55,7 @@ StepOutputs = namedtuple(
 """Output arrays of a batched step (allocated once by the caller, overwritten in place)."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def road_ranks(ego_rank: int, n: int, rank: np.ndarray) -> None:
     """rank[k] = road-order position of storage index k (the ego is stored last)."""
     for k in range(n - 1):
@@ -63,7 +63,7 @@ def road_ranks(ego_rank: int, n: int, rank: np.ndarray) -> None:
     rank[n - 1] = ego_rank
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sort_by_x(vehicles: np.ndarray, order: np.ndarray, rank: np.ndarray, position: np.ndarray) -> None:
     """Insertion-sort ``order`` by (x, road rank), O(N) when nearly sorted; position = its inverse."""
     n = order.shape[0]
@@ -85,7 +85,7 @@ def sort_by_x(vehicles: np.ndarray, order: np.ndarray, rank: np.ndarray, positio
         position[order[p]] = p
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def measure(s, c, b: int, observation: np.ndarray, slot_vehicle: np.ndarray, raw: np.ndarray) -> float:
     """Write scene b's normalized float32 observation into ``observation`` (30,); return phi."""
     n = c.vehicles
@@ -98,7 +98,7 @@ def measure(s, c, b: int, observation: np.ndarray, slot_vehicle: np.ndarray, raw
     return safety_index(ego, others, slot_vehicle, c.si_sigma, c.si_d_min, c.si_edge_d_min, c.si_n, c.si_k)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
     """Advance scene b by one control step (``substeps`` integration steps) with the ego's action."""
     n = c.vehicles
@@ -144,15 +144,14 @@ def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
             control[k, STEERING] = steer
             control[k, ACCELERATION] = clip_idm_acceleration(accel)
         for k in range(n):
-            integrate(
-                vehicles, control, crashed, impact, has_impact, lane, k, c.dt, c.lane_count, c.lane_width, c.road_length
-            )
+            integrate(vehicles, control, crashed, lane, k, c.dt, c.lane_count, c.lane_width, c.road_length)
+        apply_impacts(vehicles, crashed, impact, has_impact, lane, c.lane_count, c.lane_width, c.road_length)
         sort_by_x(vehicles, order, rank, position)
         handle_collisions(vehicles, crashed, impact, has_impact, order, rank, c.dt, pair_keys, poly_a, poly_b)
     s.steps[b] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def step_scene(s, c, out, actions: np.ndarray, b: int, auto_reset: bool) -> None:
     """Control step of scene b with ``actions[b]`` = (delta [rad], a [m/s^2]); fill ``out[.][b]``."""
     n = c.vehicles
@@ -183,21 +182,21 @@ def step_scene(s, c, out, actions: np.ndarray, b: int, auto_reset: bool) -> None
             s.phi[b] = measure(s, c, b, out.observation[b], slot_vehicle, raw)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def step_serial(s, c, out, actions: np.ndarray, auto_reset: bool) -> None:
     """All scenes, one after the other (one thread)."""
     for b in range(s.vehicles.shape[0]):
         step_scene(s, c, out, actions, b, auto_reset)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def step_parallel(s, c, out, actions: np.ndarray, auto_reset: bool) -> None:
     """All scenes, spread over numba's threads (``numba.set_num_threads``)."""
     for b in prange(s.vehicles.shape[0]):
         step_scene(s, c, out, actions, b, auto_reset)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def reset_scenes(s, c, mask: np.ndarray, observation: np.ndarray) -> None:
     """Spawn a fresh scene wherever ``mask`` is True; write its observation and phi."""
     slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
@@ -208,7 +207,7 @@ def reset_scenes(s, c, mask: np.ndarray, observation: np.ndarray) -> None:
             s.phi[b] = measure(s, c, b, observation[b], slot_vehicle, raw)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def observe(s, c, observation: np.ndarray, phi: np.ndarray) -> None:
     """Observation (B, 30) and phi (B,) of the current states, without stepping."""
     slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)

@@ -35,7 +35,7 @@ NOT_ZERO_EPS = 1e-2
 """highway-env's ``utils.not_zero`` floor [same unit as its argument]."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def not_zero(value: float) -> float:
     """value if |value| > 1e-2, else +-1e-2 (sign of value, + for 0)."""
     if abs(value) > NOT_ZERO_EPS:
@@ -45,7 +45,7 @@ def not_zero(value: float) -> float:
     return -NOT_ZERO_EPS
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def steering_control(x: float, y: float, heading: float, speed: float, target_lane: int, lane_width: float) -> float:
     """Steering [rad] that follows the centre of ``target_lane`` (lane heading 0).
 
@@ -63,7 +63,7 @@ def steering_control(x: float, y: float, heading: float, speed: float, target_la
     return min(max(steering, -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def leader(
     vehicles: np.ndarray,
     order: np.ndarray,
@@ -97,7 +97,7 @@ def leader(
     return front
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _direction(heading: float) -> tuple[float, float]:
     """(cos, sin) of the heading; exactly (1, 0) at heading 0 without calling them."""
     if heading == 0.0:
@@ -105,7 +105,7 @@ def _direction(heading: float) -> tuple[float, float]:
     return np.cos(heading), np.sin(heading)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def all_leaders(
     vehicles: np.ndarray,
     order: np.ndarray,
@@ -141,7 +141,7 @@ def all_leaders(
                 last_on_lane[candidate_lane] = k
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def desired_gap(vehicles: np.ndarray, k: int, front: int) -> float:
     """s* = s0 + v T + v dv / (2 sqrt(a b)) [m], dv = (v_k - v_front) . (cos psi_k, sin psi_k)."""
     speed = vehicles[k, SPEED]
@@ -153,7 +153,7 @@ def desired_gap(vehicles: np.ndarray, k: int, front: int) -> float:
     return IDM_DISTANCE_WANTED + speed * IDM_TIME_WANTED + speed * dv / (2 * np.sqrt(ab))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def idm_acceleration(
     vehicles: np.ndarray, k: int, front: int, target_speed: float, delta: float, speed_limit: float
 ) -> float:
@@ -167,7 +167,7 @@ def idm_acceleration(
     return acceleration
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def clip_idm_acceleration(acceleration: float) -> float:
     """np.clip(a, -ACC_MAX, ACC_MAX)."""
     return min(max(acceleration, -IDM_ACC_MAX), IDM_ACC_MAX)

@@ -88,7 +88,7 @@ class MlpPolicy:
         return z
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _dense(weight_t: np.ndarray, bias: np.ndarray, x: np.ndarray, out: np.ndarray, activate: bool) -> None:
     """out = act(W x + b) with W given transposed (in, out): the inner loop runs over outputs and
     vectorizes, each output still summing b + W[i, 0] x[0] + W[i, 1] x[1] + ... in that order."""
@@ -104,7 +104,7 @@ def _dense(weight_t: np.ndarray, bias: np.ndarray, x: np.ndarray, out: np.ndarra
             out[i] = np.tanh(out[i])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mlp_action(
     observation: np.ndarray,
     w0: np.ndarray, b0: np.ndarray, w1: np.ndarray, b1: np.ndarray, w2: np.ndarray, b2: np.ndarray,

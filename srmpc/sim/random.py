@@ -14,7 +14,7 @@ _TWO_POW_MINUS_53 = 1.0 / 9007199254740992.0
 """2^-53: the spacing of the 53-bit uniform grid on [0, 1)."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mix(z: np.uint64) -> np.uint64:
     """splitmix64's output function (a bijection of uint64)."""
     z = (z ^ (z >> np.uint64(30))) * _MIX_1
@@ -22,7 +22,7 @@ def _mix(z: np.uint64) -> np.uint64:
     return z ^ (z >> np.uint64(31))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def seed_streams(rng: np.ndarray, seed: int, first_scene: int) -> None:
     """rng[i] = mix(mix(seed) + gamma * (first_scene + i + 1)): independent streams per scene."""
     base = _mix(np.uint64(seed) + _GOLDEN_GAMMA)
@@ -30,7 +30,7 @@ def seed_streams(rng: np.ndarray, seed: int, first_scene: int) -> None:
         rng[i] = _mix(base + _GOLDEN_GAMMA * np.uint64(first_scene + i + 1))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def uniform(rng: np.ndarray, b: int, low: float, high: float) -> float:
     """Advance scene b's stream; low + (high - low) * U with U on the 53-bit grid of [0, 1)."""
     state = rng[b] + _GOLDEN_GAMMA
@@ -39,7 +39,7 @@ def uniform(rng: np.ndarray, b: int, low: float, high: float) -> float:
     return low + (high - low) * unit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integer(rng: np.ndarray, b: int, count: int) -> int:
     """Uniform integer in [0, count)."""
     return min(int(uniform(rng, b, 0.0, 1.0) * count), count - 1)

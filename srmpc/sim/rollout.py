@@ -61,7 +61,7 @@ def _allocate(scenes: int, horizon: int, vehicles: int, record_others: bool) -> 
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
                        ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
     n = c.vehicles
@@ -98,7 +98,7 @@ def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squa
     s.phi[b] = phi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rollout_mlp_serial(s, c, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
                         ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
     for b in range(s.vehicles.shape[0]):
@@ -106,7 +106,7 @@ def _rollout_mlp_serial(s, c, horizon, w0, b0, w1, b1, w2, b2, low, high, squash
                            ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _rollout_mlp_parallel(s, c, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
                           ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
     for b in prange(s.vehicles.shape[0]):

@@ -20,7 +20,7 @@ from srmpc.sim.random import integer, uniform
 from srmpc.sim.state import HEADING, SPEED, X, Y
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def spawn_scene(s, c, b: int) -> None:
     """Overwrite scene b of state ``s`` (StateArrays) with a fresh random scene (phi not set)."""
     n = c.vehicles

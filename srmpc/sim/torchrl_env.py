@@ -34,7 +34,9 @@ class TwinHighwayEnv(EnvBase):
     """B scenes of ``srmpc/Highway-v0`` in one TorchRL env (numba engine, numpy <-> torch at the edge)."""
 
     def __init__(self, params: ScenarioParameters, num_envs: int, seed: int, device="cpu",
-                 threads: int | None = None) -> None:
+                 threads: int | None = 1) -> None:
+        """``threads``: numba threads for the scenes (1: the serial kernel, the default, which never
+        competes with torch's own thread pool; scale across cores with processes instead)."""
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.params = params
         self.num_envs = num_envs

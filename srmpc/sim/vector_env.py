@@ -24,7 +24,7 @@ class TwinVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, params: ScenarioParameters, num_envs: int, seed: int = 0, threads: int | None = None) -> None:
+    def __init__(self, params: ScenarioParameters, num_envs: int, seed: int = 0, threads: int | None = 1) -> None:
         self.params = params
         self.num_envs = num_envs
         self.simulator = TwinSimulator(params, num_envs, seed=seed, threads=threads)

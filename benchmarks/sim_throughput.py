@@ -1,0 +1,179 @@
+"""Throughput of the twin against highway-env, and the cost of SRMPC's forward rollout.
+
+Writes ``results/benchmarks/sim_throughput.json``:
+
+- ``highway_env_steps_per_s``: ``SrmpcHighwayEnv`` (41 vehicles), a Python loop over B envs;
+- ``twin_steps_per_s_1thread`` / ``twin_steps_per_s_all_threads``: ``TwinSimulator.step`` (public
+  API, with auto-reset and result copies) on one thread / on all numba threads;
+- ``ratio_vs_highway_env``: twin at B = 1024 on one thread over highway-env at B = 1024;
+- ``rollout25_ms``: a 25-step forward rollout of a 2x64 tanh MLP from B scenes (fused kernel).
+
+Both simulators get the same kind of actions (no steering, uniform acceleration in [-1, 1] m/s^2,
+so most episodes run on) and auto-reset ended episodes. Timings are wall-clock medians over
+repeats; the machine's load average is recorded with them.
+
+    python benchmarks/sim_throughput.py [--quick] [--output PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from srmpc.scenario.highway import SrmpcHighwayEnv
+from srmpc.scenario.parameters import ScenarioParameters
+from srmpc.sim.mlp import MlpPolicy
+from srmpc.sim.simulator import TwinSimulator
+
+BATCH_SIZES = (1, 64, 1024)
+ROLLOUT_BATCH_SIZES = (1, 1000)
+ROLLOUT_HORIZON = 25
+"""SRMPC's N [control steps]."""
+
+
+def _actions(rng: np.random.Generator, scenes: int) -> np.ndarray:
+    return np.column_stack([np.zeros(scenes), rng.uniform(-1.0, 1.0, scenes)])
+
+
+def highway_env_steps_per_s(params: ScenarioParameters, scenes: int, min_steps: int) -> float:
+    """Steps/s of a Python loop over ``scenes`` highway-env instances (resets of ended episodes included)."""
+    envs = [SrmpcHighwayEnv(params) for _ in range(scenes)]
+    for i, env in enumerate(envs):
+        env.reset(seed=i)
+    rng = np.random.default_rng(0)
+    rounds = max(1, -(-min_steps // scenes))
+    steps = 0
+    start = time.perf_counter()
+    for _ in range(rounds):
+        actions = _actions(rng, scenes)
+        for env, action in zip(envs, actions, strict=True):
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                env.reset()
+            steps += 1
+    return steps / (time.perf_counter() - start)
+
+
+def twin_steps_per_s(params: ScenarioParameters, scenes: int, threads: int | None, min_steps: int,
+                     repeats: int) -> float:
+    """Median steps/s of ``TwinSimulator.step(..., auto_reset=True)``."""
+    sim = TwinSimulator(params, scenes, seed=0, threads=threads)
+    rng = np.random.default_rng(0)
+    actions = [_actions(rng, scenes) for _ in range(16)]
+    for a in actions:  # warm-up (and JIT)
+        sim.step(a, auto_reset=True)
+    calls = max(4, -(-min_steps // scenes))
+    rates = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for i in range(calls):
+            sim.step(actions[i % 16], auto_reset=True)
+        rates.append(calls * scenes / (time.perf_counter() - start))
+    return float(np.median(rates))
+
+
+def rollout_ms(params: ScenarioParameters, scenes: int, policy: MlpPolicy, repeats: int) -> float:
+    """Median milliseconds of one ``ROLLOUT_HORIZON``-step rollout of ``policy`` from ``scenes`` scenes."""
+    sim = TwinSimulator(params, scenes, seed=1)
+    for _ in range(10):
+        sim.step(_actions(np.random.default_rng(1), scenes))
+    sim.rollout(policy, ROLLOUT_HORIZON)
+    inner = 50 if scenes == 1 else 1
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(inner):
+            sim.rollout(policy, ROLLOUT_HORIZON)
+        times.append((time.perf_counter() - start) / inner * 1e3)
+    return float(np.median(times))
+
+
+def _git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="few steps (a smoke run, not for the record)")
+    parser.add_argument("--output", type=Path, default=Path("results/benchmarks/sim_throughput.json"))
+    args = parser.parse_args()
+    params = ScenarioParameters()
+    highway_min_steps = 60 if args.quick else 1024
+    twin_min_steps = 2_000 if args.quick else 100_000
+    repeats = 2 if args.quick else 5
+    all_threads = numba.config.NUMBA_NUM_THREADS
+    load_before = os.getloadavg()
+
+    highway = {}
+    for scenes in BATCH_SIZES:
+        highway[scenes] = highway_env_steps_per_s(params, scenes, highway_min_steps)
+        print(f"highway-env B={scenes}: {highway[scenes]:.1f} steps/s", flush=True)
+    one_thread, every_thread = {}, {}
+    numba.set_num_threads(all_threads)
+    for scenes in BATCH_SIZES:
+        one_thread[scenes] = twin_steps_per_s(params, scenes, 1, twin_min_steps, repeats)
+        every_thread[scenes] = twin_steps_per_s(params, scenes, None, twin_min_steps, repeats)
+        print(f"twin B={scenes}: {one_thread[scenes]:.0f} steps/s (1 thread), "
+              f"{every_thread[scenes]:.0f} ({all_threads} threads)", flush=True)
+    policy = MlpPolicy.random(seed=0, hidden=(64, 64), squash=True)
+    rollouts, rollouts_1thread = {}, {}
+    for scenes in ROLLOUT_BATCH_SIZES:
+        rollouts[scenes] = rollout_ms(params, scenes, policy, repeats)
+        numba.set_num_threads(1)
+        rollouts_1thread[scenes] = rollout_ms(params, scenes, policy, repeats)
+        numba.set_num_threads(all_threads)
+        print(f"rollout H={ROLLOUT_HORIZON} B={scenes}: {rollouts[scenes]:.3f} ms "
+              f"({rollouts_1thread[scenes]:.3f} ms on 1 thread)", flush=True)
+    load_after = os.getloadavg()
+
+    result = {
+        "highway_env_steps_per_s": {str(b): round(v, 2) for b, v in highway.items()},
+        "twin_steps_per_s_1thread": {str(b): round(v) for b, v in one_thread.items()},
+        "twin_steps_per_s_all_threads": {str(b): round(v) for b, v in every_thread.items()},
+        "ratio_vs_highway_env": round(one_thread[1024] / highway[1024], 1),
+        "rollout25_ms": {str(b): round(v, 4) for b, v in rollouts.items()},
+        "rollout25_ms_1thread": {str(b): round(v, 4) for b, v in rollouts_1thread.items()},
+        "targets": {"ratio_vs_highway_env": 1000, "twin_steps_per_s_1thread_at_1024": 30000,
+                    "rollout25_ms_at_1": 0.5},
+        "setup": {
+            "scenario": "srmpc/Highway-v0 defaults: 40 IDM vehicles + ego, 15 Hz simulation, 5 Hz control",
+            "actions": "steering 0, acceleration U(-1, 1) m/s^2; ended episodes auto-reset (both simulators)",
+            "twin_api": "TwinSimulator.step(actions, auto_reset=True), result arrays copied",
+            "rollout_policy": "2x64 tanh MLP (random weights), fused numba kernel; all threads for B=1000",
+            "statistic": "median of repeats (twin, rollouts); one timed pass (highway-env)",
+            "quick": bool(args.quick),
+        },
+        "machine": {
+            "cpu_count": os.cpu_count(),
+            "numba_threads": all_threads,
+            "numba_threading_layer": numba.threading_layer(),
+            "numba": numba.__version__,
+            "numpy": np.__version__,
+            "python": platform.python_version(),
+            "processor": platform.processor() or platform.machine(),
+            "load_average_before": [round(x, 2) for x in load_before],
+            "load_average_after": [round(x, 2) for x in load_after],
+            "note": "shared 2-core machine: other engineers' jobs ran at the same time; load averages above",
+        },
+        "git_commit": _git_commit(),
+        "date_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+    }
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()
