@@ -88,12 +88,24 @@ class PlannerConfig:
                 raise ValueError(f"{key}={values}: needs {size} non-negative weights")
 
 
+class SimulatorName(Enum):
+    """Which simulator evaluation runs on."""
+
+    twin = "twin"
+    """The batched numba twin (srmpc.sim), identical step for step to highway-env and ~3000x faster."""
+    highway_env = "highway_env"
+    """srmpc/Highway-v0 on highway-env itself (the reference; ~28 steps/s)."""
+
+
 @dataclass
 class EvaluationConfig:
     """Closed-loop evaluation."""
 
     controller: ControllerName = ControllerName.lane_keeping
     """Which controller drives the ego."""
+    simulator: SimulatorName = SimulatorName.twin
+    """Where the episodes run. Episode i is reset with seed + i on either; the twin's draw for a seed
+    differs from highway-env's (same distributions, own random streams)."""
     episodes: int = 1000
     """Number of episodes (paper: 1000 per traffic level)."""
     seed: int = 0

@@ -20,7 +20,7 @@ import gymnasium
 
 from srmpc import SCENARIO_ID
 from srmpc.config.compose import ConfigError
-from srmpc.config.schema import Config, ControllerName
+from srmpc.config.schema import Config, ControllerName, SimulatorName
 from srmpc.controllers import Controller
 from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGains
 from srmpc.controllers.ltv_mpc import LtvMpcSceneController, ocp_config
@@ -30,6 +30,7 @@ from srmpc.mpc.controller import LtvMpcController
 from srmpc.mpc.ocp import CollisionGeometry, TrackingWeights
 from srmpc.mpc.planner import StepOutcome
 from srmpc.scenario import road
+from srmpc.sim.single_env import TwinScenarioEnv
 from srmpc.tracking import Run
 
 OUTCOME_COLUMNS = [f"steps_{outcome.value}" for outcome in StepOutcome]
@@ -133,14 +134,18 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
     episodes = config.evaluation.episodes
     if finished:
         run.set_tags({"resumed_from_episode": str(len(finished))})
-    env = gymnasium.make(SCENARIO_ID, params=config.scenario)
+    if config.evaluation.simulator is SimulatorName.twin:
+        env = TwinScenarioEnv(config.scenario)
+    else:
+        env = gymnasium.make(SCENARIO_ID, params=config.scenario)
     csv_handle = (output_dir / "episodes.csv").open("a", newline="")
     writer = csv.writer(csv_handle)
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=episodes, initial=len(finished), desc=f"evaluate {config.scenario.traffic}", unit="ep")
+        label = f"{config.evaluation.controller.value} {config.scenario.traffic}"
+        bar = tqdm(total=episodes, initial=len(finished), desc=label, unit="ep")
 
     def on_episode(record: EpisodeRecord) -> None:
         writer.writerow(_row(record))
@@ -168,6 +173,7 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
     }
     summary["controller"] = config.evaluation.controller.value
     summary["traffic"] = config.scenario.traffic
+    summary["simulator"] = config.evaluation.simulator.value
     atomic_write_text(output_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
     run.log_metrics({k: v for k, v in summary.items() if isinstance(v, float | int)})
     run.log_artifact(output_dir / "episodes.csv")
