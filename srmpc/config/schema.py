@@ -32,6 +32,10 @@ class ControllerName(Enum):
     """IDM + lane-centre steering baseline (srmpc.controllers.lane_keeping)."""
     ltv_mpc = "ltv_mpc"
     """LTV-MPC with the ``planner`` settings (srmpc.controllers.ltv_mpc)."""
+    ppo_lsi = "ppo_lsi"
+    """The trained PPO-L-SI actor's deterministic action (``evaluation.policy_path``)."""
+    ppo = "ppo"
+    """The trained PPO actor's deterministic action (``evaluation.policy_path``)."""
 
 
 AgentConfig = PPOHyperparameters
@@ -110,6 +114,8 @@ class EvaluationConfig:
     """Number of episodes (paper: 1000 per traffic level)."""
     seed: int = 0
     """Episode i is reset with seed + i."""
+    policy_path: str | None = None
+    """policy.pt of the ppo / ppo_lsi controllers; null means results/training/<controller>/policy.pt."""
     output_dir: str | None = None
     """Where episodes.csv and summary.json go; null means Hydra's run directory. Rerunning into a
     directory that holds a partial run of the same config resumes it."""

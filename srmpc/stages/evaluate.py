@@ -17,6 +17,7 @@ from dataclasses import fields
 from pathlib import Path
 
 import gymnasium
+import numpy as np
 
 from srmpc import SCENARIO_ID
 from srmpc.config.compose import ConfigError
@@ -24,6 +25,7 @@ from srmpc.config.schema import Config, ControllerName, SimulatorName
 from srmpc.controllers import Controller
 from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGains
 from srmpc.controllers.ltv_mpc import LtvMpcSceneController, ocp_config
+from srmpc.controllers.policy import PolicyController
 from srmpc.evaluation import EpisodeRecord, evaluate
 from srmpc.metrics import EpisodeMetrics, aggregate_metrics
 from srmpc.mpc.controller import LtvMpcController
@@ -68,6 +70,13 @@ def build_controller(config: Config) -> Controller:
             LtvMpcController(ocp, planner.solver, reference_lateral_position_m=y_ref,
                              reference_speed_m_s=scenario.reward.vx_ref_mps)
         )
+    if name in (ControllerName.ppo_lsi, ControllerName.ppo):
+        path = Path(config.evaluation.policy_path or f"results/training/{name.value}/policy.pt")
+        if not path.is_file():
+            raise ConfigError(f"evaluation.policy_path={str(path)!r}: no such policy file (train first: stage=train)")
+        low = np.array([-scenario.steering_max_rad, scenario.acceleration_min_mps2])
+        high = np.array([scenario.steering_max_rad, scenario.acceleration_max_mps2])
+        return PolicyController.from_policy_file(path, low, high)
     raise ConfigError(f"evaluation.controller={name.value}: not implemented")
 
 
