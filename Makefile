@@ -15,10 +15,9 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-## The main job: regenerate every result (DVC pipeline), then the smoke experiment into MLflow.
+## The main job: regenerate every result (DVC pipeline: spawn statistics, training, evaluation, table).
 reproduce: install
 	dvc repro
-	python -m srmpc +experiment=smoke
 
 ## The default test suite (slow tests excluded).
 test: install
