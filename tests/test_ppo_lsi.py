@@ -110,7 +110,11 @@ def test_multiplier_rises_where_cost_value_positive_and_falls_to_zero_where_nega
         optimizer.step()
     end = lam()
     assert (end[unsafe] > start[unsafe]).all() and end[unsafe].mean() > 5.0 * start[unsafe].mean()
-    assert end[safe].max() < 0.05
+    # lambda(s) is a smooth network and v_c jumps at observation[0] = 0: only states clearly on the safe side
+    # (>= 0.05 from the boundary) must reach ~0. On an AVX-512 Xeon a safe state 1.8e-4 from the boundary kept
+    # lambda = 0.78, while the largest lambda at >= 0.05 from it was 0.0012.
+    clearly_safe = observation[:, 0] <= -0.05
+    assert end[clearly_safe].max() < 0.05
     assert end.max() <= hp.lambda_max
 
 
