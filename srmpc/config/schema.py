@@ -13,6 +13,7 @@ from enum import Enum
 from hydra.core.config_store import ConfigStore
 
 from srmpc.agents.hyperparameters import PPOHyperparameters
+from srmpc.controllers.srmpc import SrmpcSettings
 from srmpc.scenario.parameters import ScenarioParameters
 
 
@@ -36,6 +37,17 @@ class ControllerName(Enum):
     """The trained PPO-L-SI actor's deterministic action (``evaluation.policy_path``)."""
     ppo = "ppo"
     """The trained PPO actor's deterministic action (``evaluation.policy_path``)."""
+    srmpc = "srmpc"
+    """SRMPC: the LTV-MPC (``planner``) linearized about the ``srmpc.policy``'s rollout (srmpc.controllers.srmpc)."""
+
+
+class PolicyName(Enum):
+    """A trained agent whose actor SRMPC rolls out."""
+
+    ppo_lsi = "ppo_lsi"
+    """PPO-L-SI (the paper's safe policy)."""
+    ppo = "ppo"
+    """PPO (ablation: an unconstrained policy's reference)."""
 
 
 AgentConfig = PPOHyperparameters
@@ -92,6 +104,22 @@ class PlannerConfig:
                 raise ValueError(f"{key}={values}: needs {size} non-negative weights")
 
 
+@dataclass
+class SrmpcConfig(SrmpcSettings):
+    """SRMPC: which policy proposes the linearization reference, and the variant (``conf/srmpc/``).
+
+    ``selection``, ``prediction`` and ``relinearizations`` are documented in
+    ``srmpc.controllers.srmpc.SrmpcSettings``; the planner settings are ``planner``'s, shared with LTV-MPC.
+    """
+
+    policy: PolicyName = PolicyName.ppo_lsi
+    """Whose deterministic actor is rolled out: ppo_lsi (the paper) or ppo."""
+    policy_path: str | None = None
+    """Its policy.pt; null means results/training/<policy>/policy.pt."""
+    variant: str = "paper"
+    """Name of the variant, used in run names and tables (the file name in conf/srmpc/)."""
+
+
 class SimulatorName(Enum):
     """Which simulator evaluation runs on."""
 
@@ -105,7 +133,7 @@ class SimulatorName(Enum):
 class EvaluationConfig:
     """Closed-loop evaluation."""
 
-    controller: ControllerName = ControllerName.lane_keeping
+    controller: ControllerName = ControllerName.srmpc
     """Which controller drives the ego."""
     simulator: SimulatorName = SimulatorName.twin
     """Where the episodes run. Episode i is reset with seed + i on either; the twin's draw for a seed
@@ -143,6 +171,7 @@ class Config:
     scenario: ScenarioParameters = field(default_factory=ScenarioParameters)
     agent: AgentConfig = field(default_factory=AgentConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
+    srmpc: SrmpcConfig = field(default_factory=SrmpcConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
 

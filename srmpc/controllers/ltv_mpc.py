@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from collections import Counter
+
 import numpy as np
 
+from srmpc.controllers.outcomes import OUTCOME_KEYS, REFERENCE_OUTCOMES
 from srmpc.mpc.controller import LtvMpcController
 from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights
 from srmpc.mpc.planner import StepOutcome
@@ -39,15 +42,22 @@ class LtvMpcSceneController:
     def __init__(self, mpc: LtvMpcController) -> None:
         self.mpc = mpc
         self.step_times_us: list[float] = []
+        self.outcomes: Counter[str] = Counter()
 
     def reset(self) -> None:
         self.mpc.reset()
+        self.outcomes: Counter[str] = Counter()
 
     def episode_outcomes(self) -> dict[str, int]:
-        return {outcome.value: int(self.mpc.outcome_counts.get(outcome.value, 0)) for outcome in StepOutcome}
+        """Steps per outcome key (``srmpc.controllers.outcomes``)."""
+        return {key: int(self.outcomes.get(key, 0)) for key in OUTCOME_KEYS}
 
     def act(self, observation: np.ndarray, scene) -> np.ndarray:
         observed = scene.slot_vehicle[scene.slot_vehicle >= 0]
         action, report = self.mpc.act(scene.ego, scene.others[observed])
+        self.outcomes[report.outcome.value] += 1
+        if report.outcome is StepOutcome.SOLVED:
+            self.outcomes[REFERENCE_OUTCOMES[report.plan.reference_source]] += 1
         self.step_times_us.append(report.step_time_us)
+        self.last_report = report
         return action

@@ -172,6 +172,22 @@ class LtvMpcPlanner:
             states[k + 1] = self.model.step(states[k], inputs[k])
         return states, inputs
 
+    def default_reference(self, ego_state: np.ndarray) -> tuple[np.ndarray, np.ndarray, ReferenceSource]:
+        """The reference LTV-MPC linearizes about: the shifted previous plan, else lane following.
+
+        Returns (x^r (N + 1, 4), u^r (N, 2), source); x^r_0 is the measured state.
+        """
+        if self.last_solved_plan is not None and self.steps_since_solved < self.config.horizon:
+            ref_inputs = self.shifted_inputs(self.last_solved_plan, 1 + self.steps_since_solved)
+            return self.model.rollout(ego_state, ref_inputs), ref_inputs, ReferenceSource.SHIFTED_PREVIOUS
+        ref_states, ref_inputs = self.lane_following_reference(ego_state)
+        return ref_states, ref_inputs, ReferenceSource.LANE_FOLLOWING
+
+    def predict(self, others: np.ndarray) -> np.ndarray:
+        """The other vehicles' poses over the horizon, (N + 1, V_obs, 4), by the planner's predictor."""
+        others = np.asarray(others, dtype=np.float64).reshape(-1, STATE_DIM)
+        return np.asarray(self.predictor(others, self.config.horizon, self.config.control_period_s))
+
     # ------------------------------------------------------------------ step
     def plan(
         self,
@@ -181,56 +197,74 @@ class LtvMpcPlanner:
         tracking_reference: np.ndarray | None = None,
         linearization_reference: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> Plan:
-        """Plan from the measured ego state.
+        """Plan from the measured ego state: reference -> QP -> solve, then the fallback chain.
 
         Args:
             ego_state: (4,) [x, y, heading, speed].
             others: (V_obs, 4) observed vehicles [x, y, heading, speed], V_obs <= max_vehicles.
             last_input: (2,) previously applied (delta, a).
             tracking_reference: (N + 1, 4) x^ref; default right-lane centre at 25 m/s.
-            linearization_reference: (states (N + 1, 4), inputs (N, 2)) to linearize about,
-                e.g. SRMPC's policy rollout; default: shifted previous plan / lane following.
+            linearization_reference: (states (N + 1, 4), inputs (N, 2)) to linearize about;
+                default: shifted previous plan / lane following.
         """
         start = time.perf_counter()
-        config = self.config
-        horizon = config.horizon
         ego_state = np.asarray(ego_state, dtype=np.float64).reshape(STATE_DIM)
-        others = np.asarray(others, dtype=np.float64).reshape(-1, STATE_DIM)
+        if linearization_reference is not None:
+            ref_states, ref_inputs = linearization_reference
+            source = ReferenceSource.GIVEN
+        else:
+            ref_states, ref_inputs, source = self.default_reference(ego_state)
+        predicted = self.predict(others)
+        plan, status = self.solve_about(ego_state, predicted, last_input, ref_states, ref_inputs, source,
+                                        tracking_reference)
+        if plan is not None:
+            self.accept(plan)
+        else:
+            plan = self.fallback(ego_state, source, status)
+        plan.step_time_s = time.perf_counter() - start
+        return plan
+
+    def solve_about(
+        self,
+        ego_state: np.ndarray,
+        predicted_others: np.ndarray,
+        last_input: np.ndarray,
+        ref_states: np.ndarray,
+        ref_inputs: np.ndarray,
+        source: ReferenceSource,
+        tracking_reference: np.ndarray | None = None,
+    ) -> tuple[Plan | None, str]:
+        """Linearize about (x^r, u^r), update the QP, solve: the plan, or None and the solver status.
+
+        Does not touch the fallback state (call :meth:`accept` with the plan that is applied).
+        ``plan.solve_time_s`` is the solver's time, ``plan.step_time_s`` this call's.
+        """
+        start = time.perf_counter()
+        horizon = self.config.horizon
+        ego_state = np.asarray(ego_state, dtype=np.float64).reshape(STATE_DIM)
         last_input = np.asarray(last_input, dtype=np.float64).reshape(INPUT_DIM)
         if tracking_reference is None:
             tracking_reference = self._default_tracking
         tracking_reference = np.asarray(tracking_reference, dtype=np.float64)
         if tracking_reference.shape != (horizon + 1, STATE_DIM):
             raise ValueError(f"tracking_reference must have shape {(horizon + 1, STATE_DIM)}")
-
-        if linearization_reference is not None:
-            ref_states = np.array(linearization_reference[0], dtype=np.float64)
-            ref_inputs = np.array(linearization_reference[1], dtype=np.float64)
-            if ref_states.shape != (horizon + 1, STATE_DIM) or ref_inputs.shape != (
-                    horizon, INPUT_DIM):
-                raise ValueError("linearization_reference must be ((N + 1, 4), (N, 2)) arrays")
-            source = ReferenceSource.GIVEN
-            ref_states[0] = ego_state
-        elif self.last_solved_plan is not None and self.steps_since_solved < horizon:
-            ref_inputs = self.shifted_inputs(self.last_solved_plan, 1 + self.steps_since_solved)
-            ref_states = self.model.rollout(ego_state, ref_inputs)
-            source = ReferenceSource.SHIFTED_PREVIOUS
-        else:
-            ref_states, ref_inputs = self.lane_following_reference(ego_state)
-            source = ReferenceSource.LANE_FOLLOWING
-
-        predicted = np.asarray(self.predictor(others, horizon, config.control_period_s))
-        solution = self._solve(ego_state, ref_states, ref_inputs, tracking_reference,
-                               last_input, predicted)
+        ref_states = np.array(ref_states, dtype=np.float64)
+        ref_inputs = np.asarray(ref_inputs, dtype=np.float64)
+        if ref_states.shape != (horizon + 1, STATE_DIM) or ref_inputs.shape != (horizon, INPUT_DIM):
+            raise ValueError("the linearization reference must be ((N + 1, 4), (N, 2)) arrays")
+        ref_states[0] = ego_state
+        solution = self._solve(ego_state, ref_states, ref_inputs, tracking_reference, last_input,
+                               predicted_others)
         plan = self._plan_from_solution(solution, source)
         if plan is not None:
-            self.last_solved_plan = plan
-            self.steps_since_solved = 0
-        else:
-            plan = self._fallback(ego_state, source, solution.status)
-        plan.solve_time_s = solution.solve_time_s
-        plan.step_time_s = time.perf_counter() - start
-        return plan
+            plan.solve_time_s = solution.solve_time_s
+            plan.step_time_s = time.perf_counter() - start
+        return plan, solution.status
+
+    def accept(self, plan: Plan) -> None:
+        """Make ``plan`` (a solved one) the previous solution that later steps shift."""
+        self.last_solved_plan = plan
+        self.steps_since_solved = 0
 
     def _solve(self, ego_state, ref_states, ref_inputs, tracking_reference, last_input,
                predicted) -> QpSolution:
@@ -258,7 +292,9 @@ class LtvMpcPlanner:
         return Plan(states, inputs, StepOutcome.SOLVED, source, solution.status,
                     solution.iterations, collision_slacks, safety_slacks)
 
-    def _fallback(self, ego_state: np.ndarray, source: ReferenceSource, status: str) -> Plan:
+    def fallback(self, ego_state: np.ndarray, source: ReferenceSource, status: str) -> Plan:
+        """No QP was solved this step: the shifted last solved plan while it lasts, else emergency brake."""
+        ego_state = np.asarray(ego_state, dtype=np.float64).reshape(STATE_DIM)
         self.steps_since_solved += 1
         n_slots = self.config.max_vehicles
         if self.last_solved_plan is not None and self.steps_since_solved < self.config.horizon:

@@ -1,0 +1,229 @@
+"""SRMPC (paper Algorithm 1): the LTV-MPC linearized about a safe RL policy's rollout.
+
+Every control step k, top to bottom in :meth:`SrmpcController.act`:
+
+1. measure the scene: x_k = the ego's [x, y, heading, speed], the observed vehicles;
+2. roll the deterministic policy pi (the TanhNormal mode) forward N steps in a copy of the current
+   scene, the other vehicles moving as the simulator moves them (IDM): the ego's states
+   x^r_{0..N} and inputs u^r_{0..N-1} are the linearization reference, x^r_0 = x_k;
+3. solve the LTV-MPC QP about (x^r, u^r), optionally re-linearizing ``relinearizations`` times
+   about the exact-model trajectory of the last QP solution (SQP-style, the paper's future work);
+4. if the rollout raised, produced a non-finite value, or its QP was not solved: linearize about
+   the shifted previous solution instead (LTV-MPC's own reference) and solve that QP;
+   with ``selection=best_of_two`` both QPs are always solved and the plan with the lower
+   nonlinear cost (``srmpc.mpc.nonlinear_cost``) is applied;
+5. if no QP was solved: the planner's fallback chain (shifted previous plan, emergency brake).
+
+The information boundary: the rollout runs on the full simulator state of the current scene
+(every vehicle, their IDM parameters), as in the paper ("use pi to simulate environment state
+forward"), while the QP sees only the 6 observed vehicles, as LTV-MPC does. The other vehicles'
+predicted motion in the QP is constant velocity (the paper's) or, with
+``prediction=policy_rollout``, the observed vehicles' trajectories from the same rollout
+(their IDM response to the policy's plan).
+
+Outcomes counted per episode (``episode_outcomes``): the keys of ``srmpc.controllers.outcomes``,
+the same as LTV-MPC's.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from srmpc.controllers.outcomes import OUTCOME_KEYS, POLICY_FAILED, REFERENCE_OUTCOMES
+from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
+from srmpc.mpc.planner import LtvMpcPlanner, Plan, ReferenceSource
+from srmpc.sim.constants import SimConstants
+from srmpc.sim.mlp import MlpPolicy
+from srmpc.sim.rollout import Rollout, rollout
+from srmpc.sim.state import SceneState
+
+
+class ReferenceSelection(enum.Enum):
+    """Which linearization references are solved each step."""
+
+    policy_first = "policy_first"
+    """Algorithm 1: the policy's rollout; the shifted previous solution only if that fails."""
+    best_of_two = "best_of_two"
+    """Both, every step; apply the plan with the lower nonlinear cost (AC4MPC)."""
+
+
+class OtherVehiclePrediction(enum.Enum):
+    """How the QP predicts the observed vehicles."""
+
+    constant_velocity = "constant_velocity"
+    """Constant speed and heading (the paper's and LTV-MPC's)."""
+    policy_rollout = "policy_rollout"
+    """Their simulated IDM trajectories in the policy's rollout (constant velocity if it failed)."""
+
+
+MAX_RELINEARIZATIONS = 10
+"""Upper bound on ``relinearizations`` (each costs one more QP solve per step)."""
+
+
+@dataclass
+class SrmpcSettings:
+    """The SRMPC variant (paper: ``policy_first``, ``constant_velocity``, 0 re-linearizations)."""
+
+    selection: ReferenceSelection = ReferenceSelection.policy_first
+    """policy_first (Algorithm 1) or best_of_two."""
+    prediction: OtherVehiclePrediction = OtherVehiclePrediction.constant_velocity
+    """constant_velocity (the paper's) or policy_rollout (the rollout's IDM trajectories)."""
+    relinearizations: int = 0
+    """Extra QP solves about the exact-model trajectory of the last solution (0 = the paper)."""
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.relinearizations <= MAX_RELINEARIZATIONS:
+            raise ValueError(f"relinearizations={self.relinearizations}: must be in [0, {MAX_RELINEARIZATIONS}]")
+
+
+@dataclass(frozen=True)
+class SrmpcStepTiming:
+    """Wall time of one SRMPC step [us], split as the latency benchmark reports it."""
+
+    rollout_us: float
+    """Scene copy and policy rollout."""
+    qp_update_us: float
+    """Prediction, linearization, QP value update, plan selection (everything but the solves)."""
+    solve_us: float
+    """QP solver calls."""
+    step_us: float
+    """The whole step."""
+
+
+SceneSource = Callable[[], tuple[SceneState, SimConstants]]
+"""Returns the current scene's full simulator state (B = 1) and constants; the rollout copies it."""
+
+
+class SrmpcController:
+    """SRMPC as a scenario controller (``srmpc.controllers.Controller``).
+
+    Args:
+        policy: the trained actor (deterministic: ``MlpPolicy`` with ``squash=True``), or any
+            callable (1, 30) float32 observation -> (1, 2) physical action.
+        planner: the LTV-MPC planner (the same OCP and solver as the ``ltv_mpc`` controller).
+        scene_source: the current scene for the rollout (see :data:`SceneSource`).
+        tracking_reference: (N + 1, 4) x^ref (right-lane centre at v_ref).
+        settings: the variant.
+    """
+
+    def __init__(self, policy: MlpPolicy | Callable[[np.ndarray], np.ndarray], planner: LtvMpcPlanner,
+                 scene_source: SceneSource, tracking_reference: np.ndarray,
+                 settings: SrmpcSettings | None = None) -> None:
+        self.policy = policy
+        self.planner = planner
+        self.scene_source = scene_source
+        self.horizon = planner.config.horizon
+        self.tracking_reference = np.asarray(tracking_reference, dtype=np.float64)
+        if self.tracking_reference.shape != (self.horizon + 1, 4):
+            raise ValueError(f"tracking_reference has shape {self.tracking_reference.shape}, "
+                             f"the OCP needs {(self.horizon + 1, 4)}")
+        self.settings = settings or SrmpcSettings()
+        self.timings: list[SrmpcStepTiming] = []
+        self._solved_this_step: list[Plan] = []
+        self.last_rollout: Rollout | None = None
+        self.last_plan: Plan | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        """New episode: forget the previous solution, zero u_hat, clear the counts."""
+        self.planner.reset()
+        self.last_input = np.zeros(2)
+        self.outcomes: Counter[str] = Counter()
+
+    def episode_outcomes(self) -> dict[str, int]:
+        return {key: int(self.outcomes.get(key, 0)) for key in OUTCOME_KEYS}
+
+    def act(self, observation: np.ndarray, scene) -> np.ndarray:
+        """One step of Algorithm 1 (module doc); returns u_k = (delta [rad], a [m/s^2])."""
+        start = time.perf_counter()
+        self._solved_this_step: list[Plan] = []
+        # 1. measure
+        ego = np.asarray(scene.ego, dtype=np.float64)
+        observed = scene.slot_vehicle[scene.slot_vehicle >= 0]
+        # 2. the policy's rollout in a copy of the scene
+        policy_rollout = self.policy_rollout()
+        rollout_end = time.perf_counter()
+        if policy_rollout is None:
+            self.outcomes[POLICY_FAILED] += 1
+        if policy_rollout is not None and self.settings.prediction is OtherVehiclePrediction.policy_rollout:
+            predicted = policy_rollout.others[0][:, observed]
+        else:
+            predicted = self.planner.predict(scene.others[observed])
+        # 3. QP about the policy's reference (+ re-linearizations)
+        candidates: list[Plan] = []
+        status = "no policy reference"
+        if policy_rollout is not None:
+            plan, status = self.solve_about(ego, predicted, policy_rollout.ego[0], policy_rollout.actions[0],
+                                            ReferenceSource.GIVEN)
+            if plan is not None:
+                candidates.append(plan)
+        # 4. QP about the shifted previous solution, if needed (or always, best_of_two)
+        source = ReferenceSource.GIVEN
+        if not candidates or self.settings.selection is ReferenceSelection.best_of_two:
+            ref_states, ref_inputs, source = self.planner.default_reference(ego)
+            plan, status = self.solve_about(ego, predicted, ref_states, ref_inputs, source)
+            if plan is not None:
+                candidates.append(plan)
+        # 5. apply the better plan, or the fallback chain
+        if candidates:
+            plan = min(candidates, key=lambda p: self.nonlinear_cost(ego, p, predicted)) \
+                if len(candidates) > 1 else candidates[0]
+            self.planner.accept(plan)
+            self.outcomes[REFERENCE_OUTCOMES[plan.reference_source]] += 1
+        else:
+            plan = self.planner.fallback(ego, source, status)
+        self.outcomes[plan.outcome.value] += 1
+        self.last_input = plan.first_input.copy()
+        self.last_rollout, self.last_plan = policy_rollout, plan
+        end = time.perf_counter()
+        solve_s = sum(p.solve_time_s for p in self._solved_this_step)
+        self.timings.append(SrmpcStepTiming(
+            rollout_us=(rollout_end - start) * 1e6, qp_update_us=(end - rollout_end - solve_s) * 1e6,
+            solve_us=solve_s * 1e6, step_us=(end - start) * 1e6))
+        return self.last_input.copy()
+
+    # ------------------------------------------------------------------ the parts
+    def policy_rollout(self) -> Rollout | None:
+        """The policy's N-step rollout from the current scene, or None if it raised or is non-finite."""
+        record_others = self.settings.prediction is OtherVehiclePrediction.policy_rollout
+        try:
+            state, constants = self.scene_source()
+            result = rollout(state, constants, self.policy, self.horizon, record_others=record_others)
+        except Exception:  # noqa: BLE001 - Algorithm 1: any error in the rollout falls back
+            return None
+        finite = np.isfinite(result.ego).all() and np.isfinite(result.actions).all()
+        if record_others:
+            finite = finite and np.isfinite(result.others).all()
+        return result if finite else None
+
+    def solve_about(self, ego: np.ndarray, predicted: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
+                    source: ReferenceSource) -> tuple[Plan | None, str]:
+        """The QP about (x^r, u^r), then ``relinearizations`` QPs about the last solution's exact trajectory.
+
+        Returns the last solved plan (None if the first QP failed) and the last solver status.
+        """
+        plan, status = self.planner.solve_about(ego, predicted, self.last_input, ref_states, ref_inputs, source,
+                                                self.tracking_reference)
+        if plan is None:
+            return None, status
+        self._solved_this_step.append(plan)
+        for _ in range(self.settings.relinearizations):
+            exact_states = self.planner.model.rollout(ego, plan.inputs)
+            better, status = self.planner.solve_about(ego, predicted, self.last_input, exact_states, plan.inputs,
+                                                      source, self.tracking_reference)
+            if better is None:
+                break
+            self._solved_this_step.append(better)
+            plan = better
+        return plan, status
+
+    def nonlinear_cost(self, ego: np.ndarray, plan: Plan, predicted: np.ndarray) -> float:
+        """The plan's objective plus constraint violation on the exact model (``nonlinear_cost``)."""
+        return nonlinear_plan_cost(self.planner.config, self.planner.model, ego, plan.inputs,
+                                   self.tracking_reference, self.last_input, predicted)
