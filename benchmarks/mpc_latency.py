@@ -7,9 +7,13 @@ Per step we time the whole controller step (prediction, linearization, QP value 
 plan extraction) and, outside the timing, re-solve the same QP with Clarabel at tight tolerance
 (1e-9) to measure the first-input error |u_0 - u_0^Clarabel|_inf.
 
-Scenes: ``srmpc.mpc.synthetic_traffic.SyntheticHighway`` (3 lanes, IDM traffic, exact ego
-model), 6 observed vehicles (leader/follower per lane), because the gymnasium env is not yet
-wired to this package.
+Scenes: twin scenes of the scenario (``srmpc.sim.single_env.TwinScenarioEnv``, the batched
+simulator with one scene: highway-env's physics, 40 IDM vehicles without lane changes) in light
+and dense traffic (mean spawn gaps of ``conf/scenario/{light,dense}.yaml``); episode e of a
+level is ``reset(seed=1000 e)`` (light) or ``reset(seed=1000 e + 1)`` (dense). The controller sees
+the observed vehicles (leader/follower per lane within the perception range, at most 6) exactly
+as ``srmpc/controllers/ltv_mpc.py`` feeds it. An episode that ends in a collision or road exit
+stops there for that solver (counted in ``episodes_ended_by_collision_or_offroad``).
 
 Usage: python benchmarks/mpc_latency.py [--steps 200] [--episodes 2] [--out PATH]
 """
@@ -28,10 +32,11 @@ import numpy as np
 
 from srmpc.mpc import DEFAULT_SOLVER, LtvMpcController, OcpConfig
 from srmpc.mpc.solvers import available_solvers, make_solver
-from srmpc.mpc.synthetic_traffic import SyntheticHighway
+from srmpc.scenario.parameters import ScenarioParameters
+from srmpc.sim.single_env import TwinScenarioEnv
 
-SCENES = {"light": 24.0, "dense": 15.0}
-"""Mean spawn spacing [m]: about highway-env density 1 and 1.6 with 3 lanes."""
+SCENES = {"light": 25.0, "dense": 15.0}
+"""Mean gap between successively spawned vehicles [m] (``mean_spawn_gap_m`` of conf/scenario)."""
 OTHERS_PER_SCENE = 40
 BASELINE_SOLVER = "piqp_native"
 """The previous default; every solver's median/p99 is also reported as a ratio to it."""
@@ -70,8 +75,11 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
         for episode in range(episodes):
             seed = 1000 * episode + (0 if scene_name == "light" else 1)
             controllers = {name: LtvMpcController(config, solver=name) for name in names}
-            scenes = {name: SyntheticHighway(n_others=OTHERS_PER_SCENE, mean_spacing_m=spacing,
-                                             seed=seed) for name in names}
+            params = ScenarioParameters(traffic=scene_name, mean_spawn_gap_m=spacing,
+                                        vehicles_count=OTHERS_PER_SCENE, episode_steps=steps)
+            scenes = {name: TwinScenarioEnv(params) for name in names}
+            for scene in scenes.values():
+                scene.reset(seed=seed)
             running = set(names)
             for step in range(steps):
                 order = names[step % len(names):] + names[:step % len(names)]
@@ -79,8 +87,9 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
                     if name not in running:
                         continue
                     record, controller, scene = records[name], controllers[name], scenes[name]
-                    ego, others = scene.observe()
-                    action, report = controller.act(ego, others)
+                    measurement = scene.measurement
+                    observed = measurement.slot_vehicle[measurement.slot_vehicle >= 0]
+                    action, report = controller.act(measurement.ego, measurement.others[observed])
                     if step >= WARMUP_STEPS:  # numba/solver warm-up
                         record["step"].append(report.step_time_us)
                         record["solve"].append(report.solve_time_us)
@@ -93,8 +102,8 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
                         if reference.solved:
                             u0_reference = qp.split_solution(reference.z)[1][0]
                             record["err"].append(float(np.max(np.abs(action - u0_reference))))
-                    outcome = scene.step(action)
-                    if outcome.crashed or outcome.offroad:
+                    _, _, terminated, _, _ = scene.step(action)
+                    if terminated:  # collision or road exit
                         record["collisions"] += 1
                         running.discard(name)
     return {name: _summary(r["step"], r["solve"], r["err"], r["it"], r["outcomes"],
@@ -128,8 +137,8 @@ def main() -> None:
                     "default_meets_median": default["median_us"] <= TARGET_MEDIAN_US,
                     "default_meets_p99": default["p99_us"] <= TARGET_P99_US},
         "scenes": {
-            "source": "srmpc.mpc.synthetic_traffic.SyntheticHighway (own closed-loop scenes; "
-                      "the gymnasium env is not yet wired to the planner)",
+            "source": "srmpc.sim.single_env.TwinScenarioEnv (twin scenes of the scenario; episode e: "
+                      "reset(seed=1000 e) light, reset(seed=1000 e + 1) dense)",
             "mean_spawn_spacing_m": SCENES,
             "vehicles_per_scene": OTHERS_PER_SCENE,
             "observed_vehicles": config.max_vehicles,

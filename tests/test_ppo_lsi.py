@@ -95,7 +95,7 @@ def test_multiplier_rises_where_cost_value_positive_and_falls_to_zero_where_nega
     observation = torch.randn(512, 30)
     batch = batch[:1].expand(512).clone()
     batch.set("observation", observation)
-    unsafe, safe = observation[:, 0] > 0, observation[:, 0] <= 0
+    unsafe = observation[:, 0] > 0
     multiplier = loss.multiplier_network
     optimizer = torch.optim.Adam(multiplier.parameters(), lr=1e-2)
 

@@ -1,11 +1,20 @@
-"""Fallback chain and closed-loop physics of the LTV-MPC controller."""
+"""Fallback chain and closed-loop physics of the LTV-MPC controller, on twin scenes of the scenario.
 
-import numpy as np
+Hand-built scenes (exact ego and other vehicles) come from ``tests/twin_scenes.py``; traffic
+episodes are the scenario's own random scenes (``TwinScenarioEnv``), driven by the scene-level
+controller exactly as the evaluation drives it.
+"""
+
 import pytest
 
-from srmpc.mpc import LtvMpcController, StepOutcome
+from srmpc.controllers.ltv_mpc import LtvMpcSceneController, ocp_config
+from srmpc.evaluation import run_episode
+from srmpc.mpc import CollisionGeometry, LtvMpcController, OcpConfig, StepOutcome, TrackingWeights
 from srmpc.mpc.solvers import QpSolution, make_solver
-from srmpc.mpc.synthetic_traffic import SyntheticHighway
+from srmpc.scenario import road
+from srmpc.scenario.parameters import ScenarioParameters
+from srmpc.sim.single_env import TwinScenarioEnv
+from tests.twin_scenes import ego_state, hand_built_twin, observe, other_states
 
 
 class FailingAfter:
@@ -28,77 +37,100 @@ class FailingAfter:
         return self.inner.solve(qp, warm_start)
 
 
-def run_scene(controller, scene, steps):
-    outcomes, crashed, offroad = [], False, False
+def run_scene(controller, twin, steps):
+    """Drive the twin's ego with ``controller``; return (step outcomes, termination or "")."""
+    outcomes = []
     for _ in range(steps):
-        ego, others = scene.observe()
+        ego, others = observe(twin)
         action, report = controller.act(ego, others)
         outcomes.append(report.outcome)
-        result = scene.step(action)
-        if result.crashed or result.offroad:
-            crashed, offroad = result.crashed, result.offroad
-            break
-    return outcomes, crashed, offroad
+        result = twin.step(action[None])
+        if result.terminated[0]:
+            return outcomes, result.termination(0)
+    return outcomes, ""
 
 
 def test_forced_failure_walks_the_fallback_chain():
     solver = FailingAfter(first_failure=4)
     controller = LtvMpcController(solver=solver)
     horizon = controller.config.horizon
-    scene = SyntheticHighway(others=np.empty((0, 4)), ego_lane=2)
-    outcomes, crashed, offroad = run_scene(controller, scene, 3 + horizon + 5)
+    twin = hand_built_twin(ego=(100.0, 8.0, 0.0, 25.0))
+    outcomes, termination = run_scene(controller, twin, 3 + horizon + 5)
     assert outcomes[:3] == [StepOutcome.SOLVED] * 3
     assert outcomes[3:3 + horizon - 1] == [StepOutcome.SHIFTED_PREVIOUS] * (horizon - 1)
     assert set(outcomes[3 + horizon - 1:]) == {StepOutcome.EMERGENCY_BRAKE}
     assert controller.outcome_counts["emergency_brake"] == 6
-    assert not crashed and not offroad
+    assert termination == ""
 
 
 def test_failure_at_first_step_brakes_and_holds_lane():
     controller = LtvMpcController(solver=FailingAfter(first_failure=1))
-    scene = SyntheticHighway(others=np.empty((0, 4)), ego_lane=1, ego_speed_m_s=25.0)
-    scene.ego[1] = 4.6  # off-centre: the lane hold steers back
-    outcomes, _, _ = run_scene(controller, scene, 40)
+    twin = hand_built_twin(ego=(100.0, 4.6, 0.0, 25.0))  # off-centre: the lane hold steers back
+    outcomes, termination = run_scene(controller, twin, 40)
+    assert termination == ""
     assert set(outcomes) == {StepOutcome.EMERGENCY_BRAKE}
-    assert scene.ego[3] < 0.5
-    assert abs(scene.ego[1] - 4.0) < 0.3
+    _, y, _, speed = ego_state(twin)
+    assert abs(speed) < 0.5
+    assert abs(y - 4.0) < 0.3
 
 
 def test_no_traffic_settles_on_right_lane_at_reference_speed():
     controller = LtvMpcController()
-    scene = SyntheticHighway(others=np.empty((0, 4)), ego_lane=0, ego_speed_m_s=20.0)
-    outcomes, crashed, offroad = run_scene(controller, scene, 150)
-    assert not crashed and not offroad
+    twin = hand_built_twin(ego=(100.0, 0.0, 0.0, 20.0))
+    outcomes, termination = run_scene(controller, twin, 150)
+    assert termination == ""
     assert set(outcomes) == {StepOutcome.SOLVED}
-    x, y, heading, speed = scene.ego
+    x, y, heading, speed = ego_state(twin)
     assert abs(y - 8.0) < 0.05
     assert abs(speed - 25.0) < 0.1
     assert abs(heading) < 1e-3
 
 
 def test_slower_leader_with_free_left_lane_no_collision():
-    leader = np.array([[40.0, 8.0, 0.0, 18.0]])
     controller = LtvMpcController()
-    scene = SyntheticHighway(others=leader, ego_lane=2, ego_speed_m_s=25.0)
+    twin = hand_built_twin(ego=(100.0, 8.0, 0.0, 25.0), others=[(140.0, 8.0, 0.0, 18.0)])
     gaps = []
     for _ in range(400):
-        ego, others = scene.observe()
+        ego, others = observe(twin)
         action, _ = controller.act(ego, others)
-        result = scene.step(action)
-        assert not result.crashed and not result.offroad
-        same_lane = abs(scene.ego[1] - scene.others[0, 1]) < 2.0
-        if same_lane and scene.others[0, 0] > scene.ego[0]:
-            gaps.append(scene.others[0, 0] - scene.ego[0] - 5.0)
-    overtook = scene.ego[0] > scene.others[0, 0]
+        result = twin.step(action[None])
+        assert not result.terminated[0], result.termination(0)
+        ego, leader = ego_state(twin), other_states(twin)[0]
+        same_lane = abs(ego[1] - leader[1]) < 2.0
+        if same_lane and leader[0] > ego[0]:
+            gaps.append(leader[0] - ego[0] - road.VEHICLE_LENGTH)
+    overtook = ego[0] > leader[0]
     assert overtook or min(gaps) > 5.0  # bumper-to-bumper gap [m]
 
 
+TRAFFIC_MEAN_SPAWN_GAP_M = {"light": 25.0, "dense": 15.0}
+"""conf/scenario/{light,dense}.yaml."""
+KNOWN_COLLISIONS = {
+    ("light", 1): "the ego accelerates to ~32 m/s and cuts into the right lane onto a 19.7 m/s vehicle (step 47)",
+    ("dense", 1): "the ego, boxed in on the middle lane, accelerates to ~28 m/s and cuts into the right lane "
+                  "onto a 17 m/s vehicle (step 21)",
+}
+"""Episodes in which the LTV-MPC collides today (as in results/evaluation/twin/ltv_mpc_*, whose seed
+s + 0 is the same scene): its plans keep a positive collision slack (about 0.6) for several steps
+before. strict: a planner fix makes them pass and this list must then shrink."""
+
+
+def _episode_params():
+    for traffic in TRAFFIC_MEAN_SPAWN_GAP_M:
+        for seed in range(5):
+            reason = KNOWN_COLLISIONS.get((traffic, seed))
+            marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+            yield pytest.param(traffic, seed, marks=marks, id=f"{traffic}-{seed}")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("spacing_m", [24.0, 15.0])
-@pytest.mark.parametrize("seed", range(5))
-def test_traffic_episodes_without_collision(spacing_m, seed):
-    controller = LtvMpcController()
-    scene = SyntheticHighway(n_others=40, mean_spacing_m=spacing_m, seed=seed)
-    outcomes, crashed, offroad = run_scene(controller, scene, 400)
-    assert not crashed and not offroad
-    assert outcomes.count(StepOutcome.SOLVED) >= 0.99 * len(outcomes)
+@pytest.mark.parametrize(("traffic", "seed"), list(_episode_params()))
+def test_traffic_episodes_without_collision(traffic, seed):
+    params = ScenarioParameters(traffic=traffic, mean_spawn_gap_m=TRAFFIC_MEAN_SPAWN_GAP_M[traffic])
+    config = OcpConfig()
+    ocp = ocp_config(params, config.horizon, config.max_vehicles, TrackingWeights(), CollisionGeometry())
+    controller = LtvMpcSceneController(LtvMpcController(ocp))
+    metrics, reason, outcomes = run_episode(TwinScenarioEnv(params), controller, seed)
+    assert reason == "truncated", f"episode ended by {reason} after {metrics.n_steps} steps"
+    assert metrics.n_steps == params.episode_steps and metrics.event_cost == 0.0
+    assert outcomes["solved"] >= 0.99 * metrics.n_steps
