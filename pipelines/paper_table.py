@@ -1,17 +1,29 @@
-"""DVC stage: the paper's evaluation table from the evaluation summaries.
+"""DVC stage: the paper's evaluation table from the episodes, with 95% confidence intervals.
 
-Reads results/evaluation/twin/<controller>_<traffic>/summary.json and writes results/table.md
-(ours beside the paper's published values) and results/table.json (ours).
+Reads results/evaluation/twin/<controller>_<traffic>/{episodes.csv,summary.json} and writes
+- results/table.json: ``[traffic][method]`` with mean_return, mean_return_per_step, mean_event_cost,
+  cost_rate, mean_n_steps, mean_vx, episodes, a ``<metric>_ci95`` [low, high] beside each metric
+  (Wilson for J_c, bootstrap over episodes for the rest; srmpc.confidence_intervals) and the planner's
+  step ``outcomes``; ``[traffic]["srmpc"]["paired_differences"][other]``: SRMPC minus LTV-MPC and
+  SRMPC minus PPO-L-SI on the same seeds, with CIs;
+- results/table.md: ours beside the paper's published values, and the paper's claims checked.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 from pathlib import Path
 
+import pandas as pd
+
+from srmpc.confidence_intervals import paired_differences, table_metrics_with_intervals
+
 EVALUATION = Path("results/evaluation/twin")
-CONTROLLERS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "lane_keeping": "Lane keeping (baseline)"}
+METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "ppo": "PPO",
+           "lane_keeping": "Lane keeping (baseline)"}
+PAIRED_AGAINST = ("ltv_mpc", "ppo_lsi")
 PAPER = {  # Table "Evaluation results" of the paper: J_r, J_r per step, J_c, rho_c, n_steps, v_x
     ("light", "ppo_lsi"): (-4669, -13.4, 0.308, 0.0009, 348, 23.11),
     ("light", "ltv_mpc"): (-1241, -5.1, 0.625, 0.0026, 244, 24.38),
@@ -20,39 +32,101 @@ PAPER = {  # Table "Evaluation results" of the paper: J_r, J_r per step, J_c, rh
     ("dense", "ltv_mpc"): (-334, -2.4, 0.788, 0.0057, 139, 24.79),
     ("dense", "srmpc"): (-1211, -4.0, 0.353, 0.0012, 305, 24.47),
 }
+HEADER = ("| Algorithm | mean J_r (per step) | mean J_c | rho_c | mean n_steps | mean v_x [m/s] |\n"
+          "|---|---|---|---|---|---|")
 
 
-def row(name: str, values: tuple) -> str:
+def ci(row: dict, key: str, digits: int) -> str:
+    low, high = row[f"{key}_ci95"]
+    return f"{row[key]:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def row_with_intervals(name: str, r: dict) -> str:
+    return (f"| {name} | {ci(r, 'mean_return', 0)} ({ci(r, 'mean_return_per_step', 1)}) | "
+            f"{ci(r, 'mean_event_cost', 3)} | {ci(r, 'cost_rate', 4)} | {ci(r, 'mean_n_steps', 0)} | "
+            f"{ci(r, 'mean_vx', 2)} |")
+
+
+def paper_row(name: str, values: tuple) -> str:
     j_r, per_step, j_c, rho, steps, vx = values
     return f"| {name} | {j_r:.0f} ({per_step:.1f}) | {j_c:.3f} | {rho:.4f} | {steps:.0f} | {vx:.2f} |"
 
 
+def method_row(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame]:
+    episodes = pd.read_csv(directory / "episodes.csv")
+    summary = json.loads((directory / "summary.json").read_text())
+    if len(episodes) != summary["episodes"]:
+        raise SystemExit(f"{directory}: episodes.csv has {len(episodes)} rows, summary.json {summary['episodes']}")
+    row = table_metrics_with_intervals(episodes, resamples, seed)
+    row["outcomes"] = summary.get("outcomes", {})
+    row["terminations"] = summary.get("terminations", {})
+    return row, episodes
+
+
+def claims(traffic: dict) -> list[str]:
+    """The paper's claims about SRMPC, checked on our rows (interval overlap is stated, not hidden)."""
+    s, lines = traffic["srmpc"], []
+    others = [m for m in ("ppo_lsi", "ltv_mpc") if m in traffic]
+    lowest = all(s["mean_event_cost"] < traffic[m]["mean_event_cost"] for m in others)
+    for m in others:
+        d = s["paired_differences"][m]
+        low, high = d["mean_event_cost_ci95"]
+        verdict = "lower" if high < 0 else "higher" if low > 0 else "not distinguishable"
+        lines.append(f"- J_c, SRMPC vs {METHODS[m]}: {s['mean_event_cost']:.3f} vs {traffic[m]['mean_event_cost']:.3f}, "
+                     f"paired difference {d['mean_event_cost']:+.3f} [{low:+.3f}, {high:+.3f}]: {verdict}.")
+    lines.append(f"- Claim \"SRMPC has the lowest J_c\": {'holds' if lowest else 'does not hold'} here.")
+    if "ltv_mpc" in traffic:
+        d = s["paired_differences"]["ltv_mpc"]
+        lines.append(
+            f"- Speed and return vs LTV-MPC (claim: comparable): v_x {d['mean_vx']:+.2f} m/s "
+            f"[{d['mean_vx_ci95'][0]:+.2f}, {d['mean_vx_ci95'][1]:+.2f}], J_r {d['mean_return']:+.0f} "
+            f"[{d['mean_return_ci95'][0]:+.0f}, {d['mean_return_ci95'][1]:+.0f}].")
+    outcomes = s["outcomes"]
+    steps = sum(outcomes.get(k, 0) for k in ("solved", "shifted_previous", "emergency_brake"))
+    if steps:
+        lines.append(
+            f"- SRMPC's steps ({steps}): {outcomes.get('solved_from_policy', 0) / steps:.2%} solved from the policy's "
+            f"rollout, {outcomes.get('solved_from_shifted', 0) / steps:.2%} from the shifted previous solution, "
+            f"{outcomes.get('solved_from_lane_following', 0) / steps:.2%} from lane following, "
+            f"{outcomes.get('shifted_previous', 0) / steps:.2%} applied the shifted previous plan unsolved, "
+            f"{outcomes.get('emergency_brake', 0) / steps:.2%} emergency brake; "
+            f"the rollout failed in {outcomes.get('policy_failed', 0)}.")
+    return lines
+
+
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples")
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    args = parser.parse_args()
     table, lines = {}, []
-    header = (
-        "| Algorithm | mean J_r (per step) | mean J_c | rho_c | mean n_steps | mean v_x [m/s] |\n"
-        "|---|---|---|---|---|---|"
-    )
     for traffic in ("light", "dense"):
-        lines += [f"### {traffic} traffic", "", "Ours (1000 episodes each, twin simulator):", "", header]
-        for controller, name in CONTROLLERS.items():
-            path = EVALUATION / f"{controller}_{traffic}" / "summary.json"
-            if not path.exists():
-                continue
-            s = json.loads(path.read_text())
-            values = (s["mean_return"], s["mean_return_per_step"], s["mean_event_cost"], s["cost_rate"],
-                      s["mean_n_steps"], s["mean_vx"])
-            table.setdefault(traffic, {})[controller] = dict(zip(
-                ["mean_return", "mean_return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps", "mean_vx"],
-                values, strict=True)) | {"episodes": s["episodes"]}
-            lines.append(row(name, values))
-        lines += ["", "Paper (published values):", "", header]
-        lines += [row(CONTROLLERS[c], v) for (t, c), v in PAPER.items() if t == traffic]
+        rows, frames = {}, {}
+        for method in METHODS:
+            directory = EVALUATION / f"{method}_{traffic}"
+            if (directory / "summary.json").exists():
+                rows[method], frames[method] = method_row(directory, args.resamples, args.seed)
+        if "srmpc" in rows:
+            rows["srmpc"]["paired_differences"] = {
+                other: paired_differences(frames["srmpc"], frames[other], args.resamples, args.seed)
+                for other in PAIRED_AGAINST if other in frames
+            }
+        table[traffic] = rows
+        lines += [f"### {traffic} traffic", "",
+                  "Ours (1000 episodes each, twin simulator, episode i from seed i for every method; "
+                  "95% CIs: Wilson for J_c, bootstrap over episodes otherwise):", "", HEADER]
+        lines += [row_with_intervals(METHODS[m], r) for m, r in rows.items()]
+        lines += ["", "Paper (published values):", "", HEADER]
+        lines += [paper_row(METHODS[c], v) for (t, c), v in PAPER.items() if t == traffic]
+        if "srmpc" in rows:
+            lines += ["", "Paired differences on the same seeds (mean [95% CI]):", "",
+                      "| Difference | J_r | J_c | n_steps | v_x [m/s] |", "|---|---|---|---|---|"]
+            for other, d in rows["srmpc"]["paired_differences"].items():
+                lines.append(f"| SRMPC - {METHODS[other]} | {ci(d, 'mean_return', 0)} | {ci(d, 'mean_event_cost', 3)} | "
+                             f"{ci(d, 'mean_n_steps', 0)} | {ci(d, 'mean_vx', 2)} |")
+            lines += ["", "The paper's claims, checked:", "", *claims(rows)]
         lines.append("")
-    outputs = {
-        Path("results/table.md"): "\n".join(lines),
-        Path("results/table.json"): json.dumps(table, indent=2) + "\n",
-    }
+    outputs = {Path("results/table.md"): "\n".join(lines), Path("results/table.json"): json.dumps(table, indent=2) + "\n"}
     for path, text in outputs.items():
         temporary = path.with_name(path.name + ".tmp")
         temporary.write_text(text)

@@ -6,7 +6,8 @@ Every control step k, top to bottom in :meth:`SrmpcController.act`:
 2. roll the deterministic policy pi (the TanhNormal mode) forward N steps in a copy of the current
    scene, the other vehicles moving as the simulator moves them (IDM): the ego's states
    x^r_{0..N} and inputs u^r_{0..N-1} are the linearization reference, x^r_0 = x_k;
-3. solve the LTV-MPC QP about (x^r, u^r), optionally re-linearizing ``relinearizations`` times
+3. solve the LTV-MPC QP about (x^r, u^r) (tracking the right-lane centre at v_ref, or with
+   ``tracking=policy_rollout`` the rollout x^r itself), optionally re-linearizing ``relinearizations`` times
    about the exact-model trajectory of the last QP solution (SQP-style, the paper's future work);
 4. if the rollout raised, produced a non-finite value, or its QP was not solved: linearize about
    the shifted previous solution instead (LTV-MPC's own reference) and solve that QP;
@@ -62,6 +63,16 @@ class OtherVehiclePrediction(enum.Enum):
     """Their simulated IDM trajectories in the policy's rollout (constant velocity if it failed)."""
 
 
+class TrackingTarget(enum.Enum):
+    """What the QP's objective tracks (x^ref)."""
+
+    lane_centre = "lane_centre"
+    """The right-lane centre at v_ref (the paper's objective, LTV-MPC's)."""
+    policy_rollout = "policy_rollout"
+    """The policy's own rollout x^r: the MPC keeps the policy's lane and speed choices and adds its
+    constraints (the right-lane reference if the rollout failed)."""
+
+
 MAX_RELINEARIZATIONS = 10
 """Upper bound on ``relinearizations`` (each costs one more QP solve per step)."""
 
@@ -76,6 +87,8 @@ class SrmpcSettings:
     """constant_velocity (the paper's) or policy_rollout (the rollout's IDM trajectories)."""
     relinearizations: int = 0
     """Extra QP solves about the exact-model trajectory of the last solution (0 = the paper)."""
+    tracking: TrackingTarget = TrackingTarget.lane_centre
+    """lane_centre (the paper's x^ref) or policy_rollout (x^ref = the policy's rollout)."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.relinearizations <= MAX_RELINEARIZATIONS:
@@ -155,24 +168,27 @@ class SrmpcController:
             predicted = policy_rollout.others[0][:, observed]
         else:
             predicted = self.planner.predict(scene.others[observed])
+        tracking = self.tracking_reference
+        if policy_rollout is not None and self.settings.tracking is TrackingTarget.policy_rollout:
+            tracking = policy_rollout.ego[0]
         # 3. QP about the policy's reference (+ re-linearizations)
         candidates: list[Plan] = []
         status = "no policy reference"
         if policy_rollout is not None:
-            plan, status = self.solve_about(ego, predicted, policy_rollout.ego[0], policy_rollout.actions[0],
-                                            ReferenceSource.GIVEN)
+            plan, status = self.solve_about(ego, predicted, tracking, policy_rollout.ego[0],
+                                            policy_rollout.actions[0], ReferenceSource.GIVEN)
             if plan is not None:
                 candidates.append(plan)
         # 4. QP about the shifted previous solution, if needed (or always, best_of_two)
         source = ReferenceSource.GIVEN
         if not candidates or self.settings.selection is ReferenceSelection.best_of_two:
             ref_states, ref_inputs, source = self.planner.default_reference(ego)
-            plan, status = self.solve_about(ego, predicted, ref_states, ref_inputs, source)
+            plan, status = self.solve_about(ego, predicted, tracking, ref_states, ref_inputs, source)
             if plan is not None:
                 candidates.append(plan)
         # 5. apply the better plan, or the fallback chain
         if candidates:
-            plan = min(candidates, key=lambda p: self.nonlinear_cost(ego, p, predicted)) \
+            plan = min(candidates, key=lambda p: self.nonlinear_cost(ego, p, predicted, tracking)) \
                 if len(candidates) > 1 else candidates[0]
             self.planner.accept(plan)
             self.outcomes[REFERENCE_OUTCOMES[plan.reference_source]] += 1
@@ -202,28 +218,28 @@ class SrmpcController:
             finite = finite and np.isfinite(result.others).all()
         return result if finite else None
 
-    def solve_about(self, ego: np.ndarray, predicted: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
-                    source: ReferenceSource) -> tuple[Plan | None, str]:
+    def solve_about(self, ego: np.ndarray, predicted: np.ndarray, tracking: np.ndarray, ref_states: np.ndarray,
+                    ref_inputs: np.ndarray, source: ReferenceSource) -> tuple[Plan | None, str]:
         """The QP about (x^r, u^r), then ``relinearizations`` QPs about the last solution's exact trajectory.
 
         Returns the last solved plan (None if the first QP failed) and the last solver status.
         """
         plan, status = self.planner.solve_about(ego, predicted, self.last_input, ref_states, ref_inputs, source,
-                                                self.tracking_reference)
+                                                tracking)
         if plan is None:
             return None, status
         self._solved_this_step.append(plan)
         for _ in range(self.settings.relinearizations):
             exact_states = self.planner.model.rollout(ego, plan.inputs)
             better, status = self.planner.solve_about(ego, predicted, self.last_input, exact_states, plan.inputs,
-                                                      source, self.tracking_reference)
+                                                      source, tracking)
             if better is None:
                 break
             self._solved_this_step.append(better)
             plan = better
         return plan, status
 
-    def nonlinear_cost(self, ego: np.ndarray, plan: Plan, predicted: np.ndarray) -> float:
+    def nonlinear_cost(self, ego: np.ndarray, plan: Plan, predicted: np.ndarray, tracking: np.ndarray) -> float:
         """The plan's objective plus constraint violation on the exact model (``nonlinear_cost``)."""
-        return nonlinear_plan_cost(self.planner.config, self.planner.model, ego, plan.inputs,
-                                   self.tracking_reference, self.last_input, predicted)
+        return nonlinear_plan_cost(self.planner.config, self.planner.model, ego, plan.inputs, tracking,
+                                   self.last_input, predicted)

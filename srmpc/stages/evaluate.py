@@ -115,7 +115,7 @@ def build_controller(config: Config, env: gymnasium.Env) -> Controller:
         policy = load_policy(config, srmpc.policy.value, srmpc.policy_path, "srmpc.policy_path")
         tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
                                                    control_period_s=ocp.control_period_s)
-        settings = SrmpcSettings(srmpc.selection, srmpc.prediction, srmpc.relinearizations)
+        settings = SrmpcSettings(srmpc.selection, srmpc.prediction, srmpc.relinearizations, srmpc.tracking)
         return SrmpcController(policy, LtvMpcPlanner(ocp, config.planner.solver), scene_source(env), tracking,
                                settings)
     if name in (ControllerName.ppo_lsi, ControllerName.ppo):

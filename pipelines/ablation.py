@@ -1,0 +1,92 @@
+"""DVC stage: SRMPC's variants beside the paper's SRMPC and LTV-MPC at the same planner settings.
+
+Reads results/evaluation/twin/{srmpc,srmpc_<variant>,ltv_mpc,ppo_lsi}_<traffic>/ and, for planner settings
+that differ from conf/planner/ltv_mpc.yaml (short_margin), SRMPC and LTV-MPC both with them; writes
+- results/ablation.json: ``[traffic][variant]`` with the keys of table.json (metrics, ``_ci95`` intervals,
+  ``outcomes``), plus ``meets_target`` and, for each SRMPC variant, ``paired_differences`` against
+  the paper's SRMPC (same seeds);
+- results/ablation.md: the same as a table, with where each variant lands against the target.
+
+Target (issue "SRMPC itself"): J_c <= 0.02 in light and <= 0.05 in dense traffic at a mean v_x >= 23.5 m/s,
+beating the paper's SRMPC (0.215 / 0.353 at 24.6 / 24.5 m/s) on both axes at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+from paper_table import method_row, row_with_intervals
+
+from srmpc.confidence_intervals import paired_differences
+
+EVALUATION = Path("results/evaluation/twin")
+VARIANTS = {
+    "ltv_mpc": ("ltv_mpc", "LTV-MPC (same planner config)"),
+    "ppo_lsi": ("ppo_lsi", "PPO-L-SI (the policy alone)"),
+    "paper": ("srmpc", "SRMPC, paper (Algorithm 1)"),
+    "best_of_two": ("srmpc_best_of_two", "(a) best of two references"),
+    "rollout_prediction": ("srmpc_rollout_prediction", "(b) rollout's IDM prediction"),
+    "sqp": ("srmpc_sqp", "(c) 2 SQP re-linearizations"),
+    "track_rollout": ("srmpc_track_rollout", "(d) QP tracks the rollout"),
+    "ltv_mpc_short_margin": ("ltv_mpc_short_margin", "LTV-MPC, planner=short_margin"),
+    "short_margin": ("srmpc_short_margin", "(e) SRMPC, planner=short_margin"),
+}
+"""Variant key -> (evaluation directory prefix, label)."""
+TARGET_EVENT_COST = {"light": 0.02, "dense": 0.05}
+TARGET_MIN_VX_MPS = 23.5
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples")
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    args = parser.parse_args()
+    ablation, lines = {}, []
+    for traffic in ("light", "dense"):
+        rows, frames = {}, {}
+        for variant, (prefix, _) in VARIANTS.items():
+            directory = EVALUATION / f"{prefix}_{traffic}"
+            if not (directory / "summary.json").exists():
+                continue
+            rows[variant], frames[variant] = method_row(directory, args.resamples, args.seed)
+            rows[variant]["meets_target"] = bool(rows[variant]["mean_event_cost"] <= TARGET_EVENT_COST[traffic]
+                                                 and rows[variant]["mean_vx"] >= TARGET_MIN_VX_MPS)
+        for variant in rows:
+            if variant not in ("ltv_mpc", "ppo_lsi", "paper", "ltv_mpc_short_margin") and "paper" in frames:
+                rows[variant]["paired_differences"] = {
+                    "paper": paired_differences(frames[variant], frames["paper"], args.resamples, args.seed)}
+        ablation[traffic] = rows
+        target = f"J_c <= {TARGET_EVENT_COST[traffic]} at v_x >= {TARGET_MIN_VX_MPS} m/s"
+        lines += [f"### {traffic} traffic", "", f"1000 episodes each, the same seeds; target: {target}.", "",
+                  "| Variant | mean J_r (per step) | mean J_c | rho_c | mean n_steps | mean v_x [m/s] |\n"
+                  "|---|---|---|---|---|---|"]
+        lines += [row_with_intervals(VARIANTS[v][1], r) for v, r in rows.items()]
+        lines += ["", "| Variant | meets target | J_c - paper's SRMPC | v_x - paper's SRMPC [m/s] | "
+                      "steps from policy / shifted / unsolved fallback / brake |", "|---|---|---|---|---|"]
+        for variant, row in rows.items():
+            d = row.get("paired_differences", {}).get("paper")
+            delta_jc = (f"{d['mean_event_cost']:+.3f} [{d['mean_event_cost_ci95'][0]:+.3f}, "
+                        f"{d['mean_event_cost_ci95'][1]:+.3f}]") if d else "-"
+            delta_vx = (f"{d['mean_vx']:+.2f} [{d['mean_vx_ci95'][0]:+.2f}, {d['mean_vx_ci95'][1]:+.2f}]") if d else "-"
+            o = row["outcomes"]
+            steps = sum(o.get(k, 0) for k in ("solved", "shifted_previous", "emergency_brake"))
+            shares = (" / ".join(f"{o.get(k, 0) / steps:.1%}" for k in
+                                 ("solved_from_policy", "solved_from_shifted", "shifted_previous", "emergency_brake"))
+                      if steps else "-")
+            lines.append(f"| {VARIANTS[variant][1]} | {'yes' if row['meets_target'] else 'no'} | {delta_jc} | "
+                         f"{delta_vx} | {shares} |")
+        lines.append("")
+    outputs = {Path("results/ablation.md"): "\n".join(lines),
+               Path("results/ablation.json"): json.dumps(ablation, indent=2) + "\n"}
+    for path, text in outputs.items():
+        temporary = path.with_name(path.name + ".tmp")
+        temporary.write_text(text)
+        os.replace(temporary, path)
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
