@@ -72,7 +72,8 @@ def claims(traffic: dict) -> list[str]:
         d = s["paired_differences"][m]
         low, high = d["mean_event_cost_ci95"]
         verdict = "lower" if high < 0 else "higher" if low > 0 else "not distinguishable"
-        lines.append(f"- J_c, SRMPC vs {METHODS[m]}: {s['mean_event_cost']:.3f} vs {traffic[m]['mean_event_cost']:.3f}, "
+        lines.append(f"- J_c, SRMPC vs {METHODS[m]}: {s['mean_event_cost']:.3f} vs "
+                     f"{traffic[m]['mean_event_cost']:.3f}, "
                      f"paired difference {d['mean_event_cost']:+.3f} [{low:+.3f}, {high:+.3f}]: {verdict}.")
     lines.append(f"- Claim \"SRMPC has the lowest J_c\": {'holds' if lowest else 'does not hold'} here.")
     if "ltv_mpc" in traffic:
@@ -122,11 +123,13 @@ def main() -> None:
             lines += ["", "Paired differences on the same seeds (mean [95% CI]):", "",
                       "| Difference | J_r | J_c | n_steps | v_x [m/s] |", "|---|---|---|---|---|"]
             for other, d in rows["srmpc"]["paired_differences"].items():
-                lines.append(f"| SRMPC - {METHODS[other]} | {ci(d, 'mean_return', 0)} | {ci(d, 'mean_event_cost', 3)} | "
+                lines.append(f"| SRMPC - {METHODS[other]} | {ci(d, 'mean_return', 0)} | "
+                             f"{ci(d, 'mean_event_cost', 3)} | "
                              f"{ci(d, 'mean_n_steps', 0)} | {ci(d, 'mean_vx', 2)} |")
             lines += ["", "The paper's claims, checked:", "", *claims(rows)]
         lines.append("")
-    outputs = {Path("results/table.md"): "\n".join(lines), Path("results/table.json"): json.dumps(table, indent=2) + "\n"}
+    outputs = {Path("results/table.md"): "\n".join(lines),
+               Path("results/table.json"): json.dumps(table, indent=2) + "\n"}
     for path, text in outputs.items():
         temporary = path.with_name(path.name + ".tmp")
         temporary.write_text(text)

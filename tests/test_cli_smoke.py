@@ -75,5 +75,8 @@ def test_ltv_mpc_controller_runs_through_evaluation_and_counts_outcomes(tmp_path
     config = _config(1, **{"evaluation.controller": "ltv_mpc"})
     summary = run_evaluation(config, "ltv\n", tmp_path / "eval", Run(None), progress=False)
     assert summary["controller"] == "ltv_mpc" and summary["mean_n_steps"] > 0
-    assert sum(summary["outcomes"].values()) == summary["mean_n_steps"]
-    assert set(summary["outcomes"]) == {"solved", "shifted_previous", "emergency_brake"}
+    outcomes = summary["outcomes"]
+    chain = outcomes["solved"] + outcomes["shifted_previous"] + outcomes["emergency_brake"]
+    assert chain == summary["mean_n_steps"]
+    assert outcomes["solved"] == (outcomes["solved_from_shifted"] + outcomes["solved_from_lane_following"])
+    assert outcomes["solved_from_lane_following"] == 1 and outcomes["solved_from_policy"] == 0

@@ -23,7 +23,7 @@ def test_every_experiment_composes_into_the_schema(experiment):
     assert isinstance(config, Config) and isinstance(config.scenario, ScenarioParameters)
 
 
-@pytest.mark.parametrize("group", ["scenario", "agent", "planner", "evaluation", "tracking"])
+@pytest.mark.parametrize("group", ["scenario", "agent", "planner", "srmpc", "evaluation", "tracking"])
 def test_every_group_option_composes(group):
     for option in sorted(p.stem for p in (CONFIG_DIR / group).glob("*.yaml")):
         to_objects(compose_config([f"{group}={option}"]))
@@ -46,6 +46,9 @@ def test_dense_traffic_differs_from_light_only_in_traffic():
         ("evaluation.controller=zzz", ["evaluation.controller", "'zzz'"]),
         ("scenario.mean_spawn_gap_m=-1", ["scenario.mean_spawn_gap_m=-1.0"]),
         ("scenario.safety_index.n=0", ["scenario.safety_index.n=0.0"]),
+        ("srmpc.relinearizations=-1", ["srmpc.relinearizations=-1"]),
+        ("srmpc.selection=zzz", ["srmpc.selection", "'zzz'"]),
+        ("srmpc=nope", ["srmpc=nope", "best_of_two"]),
     ],
 )
 def test_bad_config_is_one_clear_error(override, fragments):

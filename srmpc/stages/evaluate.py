@@ -41,6 +41,8 @@ from srmpc.sim.single_env import TwinScenarioEnv
 from srmpc.sim.state import SceneState
 from srmpc.tracking import Run
 
+REPOSITORY = Path(__file__).resolve().parents[2]
+"""The repository root: default policy files are its results/training/<agent>/policy.pt, from any directory."""
 OUTCOME_COLUMNS = [f"steps_{key}" for key in OUTCOME_KEYS]
 """Per-episode planner outcome counts (0 for controllers without outcomes): which link of the fallback
 chain produced the applied input (solved, shifted_previous, emergency_brake), which linearization
@@ -72,7 +74,7 @@ def build_planner_objects(config: Config) -> tuple[OcpConfig, float]:
 def load_policy(config: Config, agent: str, path: str | None, key: str) -> MlpPolicy:
     """The deterministic actor of ``agent`` (TanhNormal mode) from ``path`` or its training output."""
     scenario = config.scenario
-    policy_file = Path(path or f"results/training/{agent}/policy.pt")
+    policy_file = Path(path) if path else REPOSITORY / "results" / "training" / agent / "policy.pt"
     if not policy_file.is_file():
         raise ConfigError(f"{key}={str(policy_file)!r}: no such policy file (train first: stage=train agent={agent})")
     low = np.array([-scenario.steering_max_rad, scenario.acceleration_min_mps2])
