@@ -46,7 +46,10 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
     if config.stage is Stage.train:
         run_name = f"train-{config.agent.name}-{config.agent.task.value}-{config.scenario.traffic}"
     else:
-        run_name = f"{config.stage.value}-{config.evaluation.controller.value}-{config.scenario.traffic}"
+        controller = config.evaluation.controller.value
+        if controller == "srmpc":
+            controller = f"srmpc-{config.srmpc.variant}"
+        run_name = f"{config.stage.value}-{controller}-{config.scenario.traffic}"
     with tracked_run(
         tracking.enabled, tracking.uri, tracking.artifact_location, tracking.experiment_name, run_name,
         OmegaConf.to_container(cfg, resolve=True), config_yaml,
