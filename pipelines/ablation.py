@@ -64,7 +64,7 @@ def main() -> None:
                   "| Variant | mean J_r (per step) | mean J_c | rho_c | mean n_steps | mean v_x [m/s] |\n"
                   "|---|---|---|---|---|---|"]
         lines += [row_with_intervals(VARIANTS[v][1], r) for v, r in rows.items()]
-        lines += ["", "| Variant | meets target | J_c - paper's SRMPC | v_x - paper's SRMPC [m/s] | "
+        lines += ["", "| Variant | meets target | J_c - SRMPC (Algorithm 1) | v_x - SRMPC (Algorithm 1) [m/s] | "
                       "steps from policy / shifted / unsolved fallback / brake |", "|---|---|---|---|---|"]
         for variant, row in rows.items():
             d = row.get("paired_differences", {}).get("paper")
