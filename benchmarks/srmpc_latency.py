@@ -26,7 +26,6 @@ import numpy as np
 import torch
 
 from srmpc.config.compose import compose_config, to_objects
-from srmpc.controllers.ltv_mpc import LtvMpcSceneController
 from srmpc.controllers.srmpc import SrmpcController
 from srmpc.sim.single_env import TwinScenarioEnv
 from srmpc.stages.evaluate import build_controller
@@ -53,7 +52,7 @@ def percentiles(values: list[float]) -> dict[str, float]:
 def breakdown(controller, start: int) -> tuple[float, float, float]:
     """(rollout, qp_update, solve) [us] of the controller's last step."""
     if isinstance(controller, SrmpcController):
-        t = controller.timings[-1]
+        t = controller.last_timing
         return t.rollout_us, t.qp_update_us, t.solve_us
     report = controller.last_report
     return 0.0, report.step_time_us - report.solve_time_us, report.solve_time_us

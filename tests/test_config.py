@@ -47,6 +47,8 @@ def test_dense_traffic_differs_from_light_only_in_traffic():
         ("scenario.mean_spawn_gap_m=-1", ["scenario.mean_spawn_gap_m=-1.0"]),
         ("scenario.safety_index.n=0", ["scenario.safety_index.n=0.0"]),
         ("srmpc.relinearizations=-1", ["srmpc.relinearizations=-1"]),
+        ("evaluation.episodes=0", ["evaluation.episodes=0"]),
+        ("evaluation.seed=-3", ["evaluation.seed=-3"]),
         ("srmpc.selection=zzz", ["srmpc.selection", "'zzz'"]),
         ("srmpc=nope", ["srmpc=nope", "best_of_two"]),
     ],

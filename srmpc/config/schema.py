@@ -148,6 +148,12 @@ class EvaluationConfig:
     """Where episodes.csv and summary.json go; null means Hydra's run directory. Rerunning into a
     directory that holds a partial run of the same config resumes it."""
 
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise ValueError(f"episodes={self.episodes}: must be >= 1")
+        if self.seed < 0:
+            raise ValueError(f"seed={self.seed}: must be >= 0 (episode i is reset with seed + i)")
+
 
 @dataclass
 class TrackingConfig:

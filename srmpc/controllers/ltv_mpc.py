@@ -41,7 +41,7 @@ class LtvMpcSceneController:
 
     def __init__(self, mpc: LtvMpcController) -> None:
         self.mpc = mpc
-        self.step_times_us: list[float] = []
+        self.last_report = None
         self.outcomes: Counter[str] = Counter()
 
     def reset(self) -> None:
@@ -58,6 +58,5 @@ class LtvMpcSceneController:
         self.outcomes[report.outcome.value] += 1
         if report.outcome is StepOutcome.SOLVED:
             self.outcomes[REFERENCE_OUTCOMES[report.plan.reference_source]] += 1
-        self.step_times_us.append(report.step_time_us)
         self.last_report = report
         return action

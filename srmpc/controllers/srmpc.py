@@ -137,7 +137,7 @@ class SrmpcController:
             raise ValueError(f"tracking_reference has shape {self.tracking_reference.shape}, "
                              f"the OCP needs {(self.horizon + 1, 4)}")
         self.settings = settings or SrmpcSettings()
-        self.timings: list[SrmpcStepTiming] = []
+        self.last_timing: SrmpcStepTiming | None = None
         self._solved_this_step: list[Plan] = []
         self.last_rollout: Rollout | None = None
         self.last_plan: Plan | None = None
@@ -199,9 +199,9 @@ class SrmpcController:
         self.last_rollout, self.last_plan = policy_rollout, plan
         end = time.perf_counter()
         solve_s = sum(p.solve_time_s for p in self._solved_this_step)
-        self.timings.append(SrmpcStepTiming(
+        self.last_timing = SrmpcStepTiming(
             rollout_us=(rollout_end - start) * 1e6, qp_update_us=(end - rollout_end - solve_s) * 1e6,
-            solve_us=solve_s * 1e6, step_us=(end - start) * 1e6))
+            solve_us=solve_s * 1e6, step_us=(end - start) * 1e6)
         return self.last_input.copy()
 
     # ------------------------------------------------------------------ the parts
