@@ -15,10 +15,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
-from paper_table import method_row, row_with_intervals
+from paper_table import method_row, row_with_intervals, write_outputs
 
 from srmpc.confidence_intervals import paired_differences
 
@@ -79,12 +78,8 @@ def main() -> None:
             lines.append(f"| {VARIANTS[variant][1]} | {'yes' if row['meets_target'] else 'no'} | {delta_jc} | "
                          f"{delta_vx} | {shares} |")
         lines.append("")
-    outputs = {Path("results/ablation.md"): "\n".join(lines),
-               Path("results/ablation.json"): json.dumps(ablation, indent=2) + "\n"}
-    for path, text in outputs.items():
-        temporary = path.with_name(path.name + ".tmp")
-        temporary.write_text(text)
-        os.replace(temporary, path)
+    write_outputs({Path("results/ablation.md"): "\n".join(lines),
+                   Path("results/ablation.json"): json.dumps(ablation, indent=2) + "\n"})
     print("\n".join(lines))
 
 

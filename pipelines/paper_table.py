@@ -63,6 +63,14 @@ def method_row(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.Dat
     return row, episodes
 
 
+def write_outputs(outputs: dict[Path, str]) -> None:
+    """Write each text through a temporary file and a rename, so a crash never leaves half a file."""
+    for path, text in outputs.items():
+        temporary = path.with_name(path.name + ".tmp")
+        temporary.write_text(text)
+        os.replace(temporary, path)
+
+
 def claims(traffic: dict) -> list[str]:
     """The paper's claims about SRMPC, checked on our rows (interval overlap is stated, not hidden)."""
     s, lines = traffic["srmpc"], []
@@ -128,12 +136,8 @@ def main() -> None:
                              f"{ci(d, 'mean_n_steps', 0)} | {ci(d, 'mean_vx', 2)} |")
             lines += ["", "The paper's claims, checked:", "", *claims(rows)]
         lines.append("")
-    outputs = {Path("results/table.md"): "\n".join(lines),
-               Path("results/table.json"): json.dumps(table, indent=2) + "\n"}
-    for path, text in outputs.items():
-        temporary = path.with_name(path.name + ".tmp")
-        temporary.write_text(text)
-        os.replace(temporary, path)
+    write_outputs({Path("results/table.md"): "\n".join(lines),
+                   Path("results/table.json"): json.dumps(table, indent=2) + "\n"})
     print("\n".join(lines))
 
 

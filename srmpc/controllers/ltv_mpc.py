@@ -42,21 +42,22 @@ class LtvMpcSceneController:
     def __init__(self, mpc: LtvMpcController) -> None:
         self.mpc = mpc
         self.last_report = None
-        self.outcomes: Counter[str] = Counter()
+        self.reset()
 
     def reset(self) -> None:
         self.mpc.reset()
-        self.outcomes: Counter[str] = Counter()
+        self.solved_by_reference: Counter[str] = Counter()
 
     def episode_outcomes(self) -> dict[str, int]:
-        """Steps per outcome key (``srmpc.controllers.outcomes``)."""
-        return {key: int(self.outcomes.get(key, 0)) for key in OUTCOME_KEYS}
+        """Steps per outcome key (``srmpc.controllers.outcomes``): the MPC's chain counts, and of its
+        solved steps, how many per linearization reference."""
+        counts = self.mpc.outcome_counts + self.solved_by_reference
+        return {key: int(counts.get(key, 0)) for key in OUTCOME_KEYS}
 
     def act(self, observation: np.ndarray, scene) -> np.ndarray:
         observed = scene.slot_vehicle[scene.slot_vehicle >= 0]
         action, report = self.mpc.act(scene.ego, scene.others[observed])
-        self.outcomes[report.outcome.value] += 1
         if report.outcome is StepOutcome.SOLVED:
-            self.outcomes[REFERENCE_OUTCOMES[report.plan.reference_source]] += 1
+            self.solved_by_reference[REFERENCE_OUTCOMES[report.plan.reference_source]] += 1
         self.last_report = report
         return action

@@ -27,7 +27,7 @@ from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGai
 from srmpc.controllers.ltv_mpc import LtvMpcSceneController, ocp_config
 from srmpc.controllers.outcomes import OUTCOME_KEYS
 from srmpc.controllers.policy import PolicyController
-from srmpc.controllers.srmpc import SceneSource, SrmpcController, SrmpcSettings
+from srmpc.controllers.srmpc import SceneSource, SrmpcController
 from srmpc.evaluation import EpisodeRecord, evaluate
 from srmpc.metrics import EpisodeMetrics, aggregate_metrics
 from srmpc.mpc.controller import LtvMpcController
@@ -117,9 +117,8 @@ def build_controller(config: Config, env: gymnasium.Env) -> Controller:
         policy = load_policy(config, srmpc.policy.value, srmpc.policy_path, "srmpc.policy_path")
         tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
                                                    control_period_s=ocp.control_period_s)
-        settings = SrmpcSettings(srmpc.selection, srmpc.prediction, srmpc.relinearizations, srmpc.tracking)
         return SrmpcController(policy, LtvMpcPlanner(ocp, config.planner.solver), scene_source(env), tracking,
-                               settings)
+                               srmpc)  # SrmpcConfig is the SrmpcSettings schema plus the policy's name and file
     if name in (ControllerName.ppo_lsi, ControllerName.ppo):
         return PolicyController(load_policy(config, name.value, config.evaluation.policy_path,
                                             "evaluation.policy_path"))
