@@ -69,21 +69,25 @@ def draw_column(axes, title, scene, predicted, reference, plan, dt, reference_la
     for boundary in road.LANE_CENTERS[:-1] + road.LANE_WIDTH / 2:
         top.axhline(boundary, color="0.6", lw=0.8, ls=(0, (6, 6)))
     x0 = scene.ego[0]
+    labels = {0: "observed vehicles now", -1: "... at the horizon's end (constant velocity)"}
     for j in range(predicted.shape[1]):
         for stage, alpha in ((0, 0.9), (-1, 0.25)):
             x, y = predicted[stage, j, 0] - x0, predicted[stage, j, 1]
             top.add_patch(Rectangle((x - road.VEHICLE_LENGTH / 2, y - road.VEHICLE_WIDTH / 2), road.VEHICLE_LENGTH,
-                                    road.VEHICLE_WIDTH, color="tab:blue", alpha=alpha))
+                                    road.VEHICLE_WIDTH, color="tab:blue", alpha=alpha,
+                                    label=labels.pop(stage, None)))
     top.add_patch(Rectangle((-road.VEHICLE_LENGTH / 2, scene.ego[1] - road.VEHICLE_WIDTH / 2), road.VEHICLE_LENGTH,
-                            road.VEHICLE_WIDTH, color="tab:red"))
+                            road.VEHICLE_WIDTH, color="tab:red", label="ego"))
     top.plot(ref_states[:, 0] - x0, ref_states[:, 1], "k--", label=reference_label)
     top.plot(plan.states[:, 0] - x0, plan.states[:, 1], "tab:red", label="QP solution (applied plan)")
     top.set_xlim(-30, max(plan.states[-1, 0], ref_states[-1, 0]) - x0 + 20)
-    top.set_ylim(road.RIGHT_ROAD_EDGE + 1, road.LEFT_ROAD_EDGE - 1)  # y grows to the right: right lane at the bottom
+    # y grows to the right: right lane at the bottom; room above the road for the legend
+    top.set_ylim(road.RIGHT_ROAD_EDGE + 1, road.LEFT_ROAD_EDGE - 7)
+    top.set_yticks(road.LANE_CENTERS)
     top.set_title(title)
     top.set_xlabel("x - x_ego [m]")
-    top.set_ylabel("y [m]")
-    top.legend(loc="upper right", fontsize=7)
+    top.set_ylabel("y [m] (lane centres)")
+    top.legend(loc="upper right", fontsize=7, ncol=2)
     series = [("y [m]", ref_states[:, 1], plan.states[:, 1], time_s),
               ("v [m/s]", ref_states[:, 3], plan.states[:, 3], time_s),
               ("heading [rad]", ref_states[:, 2], plan.states[:, 2], time_s),
