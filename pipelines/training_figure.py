@@ -1,16 +1,19 @@
-"""The paper's training figure (PPO vs PPO-L-SI) and ``results/training/summary.json``.
+"""The paper's training figure (PPO vs PPO-L-SI, over seeds) and ``results/training/summary.json``.
 
-    python pipelines/training_figure.py [--training-dir results/training] [--window 0.05]
+    python pipelines/training_figure.py [--training-dir results/training] [--seeds 0 1 2] [--window 0.05]
 
-Reads each agent's ``<training-dir>/<agent>/metrics.csv`` (one row per iteration, written by the
-trainer) and writes:
+Reads each agent's ``<training-dir>/<agent>/seed_<seed>/metrics.csv`` (one row per iteration, written
+by the trainer; DVC stage ``train@<agent>-<seed>``) and writes:
 - ``results/figures/training.png``: episodic return J_r (sum of r'), episodic cost return J_c
-  (collisions + road exits) and cost rate rho_c against environment steps, each smoothed by a
-  running mean over ``window`` x (number of iterations) iterations, as in the paper's figure;
-- ``results/figures/training.csv``: the raw and smoothed series behind the plot;
-- ``<training-dir>/summary.json``: per agent frames, wall_s, return, cost_return, cost_rate (and
-  more) over the last 5% of training, plus the paper's claim (PPO-L-SI's final cost rate under half
-  of PPO's, its return not worse) evaluated on these numbers.
+  (collisions + road exits) and cost rate rho_c against environment steps, each smoothed per seed by
+  a running mean over ``window`` x (number of iterations) iterations, as in the paper's figure; the
+  line is the mean over seeds, the band their range (min to max);
+- ``results/figures/training.csv``: the raw and smoothed series behind the plot, per seed;
+- ``<training-dir>/summary.json``: per agent the mean over seeds of frames, wall_s, return,
+  cost_return, cost_rate (and more) over the last 5% of training, ``per_seed`` (the same per seed),
+  ``cost_rate_ci95``, ``cost_return_ci95`` and ``return_ci95`` (Student-t over seeds), the list
+  ``seeds``, and the paper's claim (PPO-L-SI's final cost rate under half of PPO's, its return not
+  worse) evaluated on the means and per seed.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from srmpc.agents.report import read_metrics, summarize_training  # noqa: E402
+from srmpc.confidence_intervals import t_interval  # noqa: E402
 
 AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI"}
 SERIES = (("return", "episode/return", "episodic return $J_r$"),
@@ -44,10 +48,42 @@ def running_mean(values: list[float], window: int) -> list[float]:
     return out
 
 
+def summarize_seeds(per_seed: dict[int, dict[str, float]]) -> dict:
+    """Mean over seeds of every numeric summary key, t intervals of the claim's metrics, and per seed."""
+    keys = [k for k, v in next(iter(per_seed.values())).items() if isinstance(v, int | float)]
+    summary: dict = {k: sum(s[k] for s in per_seed.values()) / len(per_seed) for k in keys}
+    for key in ("cost_rate", "cost_return", "return"):
+        interval = t_interval([s[key] for s in per_seed.values()])
+        summary[f"{key}_ci95"] = None if math.isnan(interval[0]) else list(interval)
+    summary["seeds"] = sorted(per_seed)
+    summary["per_seed"] = {str(seed): s for seed, s in sorted(per_seed.items())}
+    return summary
+
+
+def paper_claim(ppo: dict, lsi: dict) -> dict:
+    """The paper's training claim on the means over seeds, and seed by seed (same seed, same resets)."""
+    holds = lambda a, b: bool(b["cost_rate"] < 0.5 * a["cost_rate"] and b["return"] >= a["return"])  # noqa: E731
+    common = sorted(set(ppo["per_seed"]) & set(lsi["per_seed"]), key=int)
+    return {
+        "statement": "at the end of training PPO-L-SI's cost rate is under half of PPO's and its return is not worse",
+        "cost_rate_ratio_lsi_over_ppo": lsi["cost_rate"] / ppo["cost_rate"] if ppo["cost_rate"] > 0 else None,
+        "return_difference_lsi_minus_ppo": lsi["return"] - ppo["return"],
+        "holds": holds(ppo, lsi),
+        "cost_rate_ci95_disjoint": None if None in (lsi["cost_rate_ci95"], ppo["cost_rate_ci95"]) else
+        bool(lsi["cost_rate_ci95"][1] < ppo["cost_rate_ci95"][0] or ppo["cost_rate_ci95"][1] < lsi["cost_rate_ci95"][0]),
+        "per_seed": {seed: {"cost_rate_ratio_lsi_over_ppo": lsi["per_seed"][seed]["cost_rate"]
+                            / ppo["per_seed"][seed]["cost_rate"] if ppo["per_seed"][seed]["cost_rate"] > 0 else None,
+                            "return_difference_lsi_minus_ppo": lsi["per_seed"][seed]["return"]
+                            - ppo["per_seed"][seed]["return"],
+                            "holds": holds(ppo["per_seed"][seed], lsi["per_seed"][seed])} for seed in common},
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--training-dir", type=Path, default=ROOT / "results/training")
     parser.add_argument("--figure-dir", type=Path, default=ROOT / "results/figures")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--window", type=float, default=0.05, help="running-mean window, fraction of iterations")
     parser.add_argument("--last-fraction", type=float, default=0.05, help="summary over this final share of frames")
     args = parser.parse_args()
@@ -57,31 +93,42 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    runs = {a: read_metrics(args.training_dir / a / "metrics.csv") for a in AGENTS
-            if (args.training_dir / a / "metrics.csv").exists()}
+    runs: dict[str, dict[int, list[dict[str, float]]]] = {}
+    for agent in AGENTS:
+        for seed in args.seeds:
+            path = args.training_dir / agent / f"seed_{seed}" / "metrics.csv"
+            if path.exists():
+                runs.setdefault(agent, {})[seed] = read_metrics(path)
     if not runs:
-        raise SystemExit(f"no metrics.csv under {args.training_dir}/{{{','.join(AGENTS)}}}")
+        raise SystemExit(f"no metrics.csv under {args.training_dir}/{{{','.join(AGENTS)}}}/seed_*")
     args.figure_dir.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     table = []
-    for agent, rows in runs.items():
-        window = max(1, round(args.window * len(rows)))
-        frames = [r["frames"] for r in rows]
-        smoothed = {}
+    for agent, seeds in runs.items():
+        length = min(len(rows) for rows in seeds.values())
+        frames = [r["frames"] for r in next(iter(seeds.values()))[:length]]
         for (name, column, label), axis in zip(SERIES, axes, strict=True):
-            raw = [r[column] for r in rows]
-            smoothed[name] = running_mean(raw, window)
-            axis.plot(frames, smoothed[name], label=AGENTS[agent])
+            curves = []
+            for seed, rows in seeds.items():
+                window = max(1, round(args.window * len(rows)))
+                smoothed = running_mean([r[column] for r in rows], window)
+                curves.append(smoothed[:length])
+                for i, r in enumerate(rows):
+                    table.append({"agent": agent, "seed": seed, "frames": int(r["frames"]), "wall_s": r["wall_s"],
+                                  "series": name, "value": r[column], "running_mean": smoothed[i]})
+            mean = [sum(c[i] for c in curves) / len(curves) for i in range(length)]
+            low = [min(c[i] for c in curves) for i in range(length)]
+            high = [max(c[i] for c in curves) for i in range(length)]
+            line, = axis.plot(frames, mean, label=f"{AGENTS[agent]} (mean of {len(seeds)} seeds)")
+            axis.fill_between(frames, low, high, color=line.get_color(), alpha=0.2, lw=0)
             axis.set_xlabel("environment steps")
             axis.set_ylabel(label)
-        for i, r in enumerate(rows):
-            table.append({"agent": agent, "frames": int(r["frames"]), "wall_s": r["wall_s"],
-                          **{name: r[column] for name, column, _ in SERIES},
-                          **{f"{name}_running_mean": smoothed[name][i] for name, _, _ in SERIES}})
+    axes[2].set_yscale("log")
     for axis in axes:
         axis.grid(alpha=0.3)
         axis.legend()
-    fig.suptitle(f"PPO vs PPO-L-SI in training (running mean over {args.window:.0%} of the iterations)")
+    fig.suptitle(f"PPO vs PPO-L-SI in training: mean over seeds, band = range over seeds "
+                 f"(running mean over {args.window:.0%} of the iterations)")
     fig.tight_layout()
     fig.savefig(args.figure_dir / "training.png", dpi=120)
     with (args.figure_dir / "training.csv").open("w", newline="") as handle:
@@ -89,18 +136,13 @@ def main() -> None:
         writer.writeheader()
         writer.writerows(table)
 
-    summary = {agent: summarize_training(rows, args.last_fraction) for agent, rows in runs.items()}
+    summary = {agent: summarize_seeds({seed: summarize_training(rows, args.last_fraction)
+                                       for seed, rows in seeds.items()})
+               for agent, seeds in runs.items()}
     if {"ppo", "ppo_lsi"} <= summary.keys():
-        ppo, lsi = summary["ppo"], summary["ppo_lsi"]
-        summary["paper_claim"] = {
-            "statement": "at the end of training PPO-L-SI's cost rate is under half of PPO's "
-                         "and its return is not worse",
-            "cost_rate_ratio_lsi_over_ppo": lsi["cost_rate"] / ppo["cost_rate"] if ppo["cost_rate"] > 0 else None,
-            "return_difference_lsi_minus_ppo": lsi["return"] - ppo["return"],
-            "holds": bool(lsi["cost_rate"] < 0.5 * ppo["cost_rate"] and lsi["return"] >= ppo["return"]),
-        }
+        summary["paper_claim"] = paper_claim(summary["ppo"], summary["ppo_lsi"])
     (args.training_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    print(json.dumps(summary, indent=2))
+    print(json.dumps({k: v for k, v in summary.items()}, indent=2)[:4000])
 
 
 if __name__ == "__main__":

@@ -7,9 +7,12 @@
   the percentile bootstrap over episodes, resampling whole episodes with replacement.
 - Paired differences (method A minus method B on the same seeds, so the same scenes): the percentile
   bootstrap of the mean per-episode difference, resampling episode pairs.
+- Over training seeds (few independent runs): the Student-t interval of the mean.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pandas as pd
@@ -82,3 +85,17 @@ def paired_differences(a: pd.DataFrame, b: pd.DataFrame, resamples: int, seed: i
         result[metric] = float(difference.mean())
         result[f"{metric}_ci95"] = percentile_interval(difference[index].mean(axis=1))
     return result
+
+
+def t_interval(values: list[float], confidence: float = 0.95) -> tuple[float, float]:
+    """Student-t interval of the mean of independent runs (e.g. training seeds): mean +- t s / sqrt(n).
+
+    With n = 1 the interval is undefined and (nan, nan) is returned.
+    """
+    from scipy.stats import t
+
+    sample = np.asarray(values, dtype=float)
+    if sample.size < 2:
+        return (math.nan, math.nan)
+    half = t.ppf(0.5 + confidence / 2.0, sample.size - 1) * sample.std(ddof=1) / math.sqrt(sample.size)
+    return (float(sample.mean() - half), float(sample.mean() + half))

@@ -10,6 +10,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
+from srmpc.config.validation import (
+    DISCOUNT,
+    FINITE,
+    NON_NEGATIVE,
+    POSITIVE,
+    TEXT,
+    UNIT_INTERVAL,
+    Interval,
+    Vector,
+    at_least,
+    check_fields,
+)
+
 
 def _check(condition: bool, key: str, value: object, expectation: str) -> None:
     if not condition:
@@ -40,7 +53,7 @@ class PPOHyperparameters:
     gamma: float = 0.99
     """Reward discount gamma (horizon ~100 steps = 20 s at 5 Hz)."""
     cost_gamma: float = 0.9
-    """Cost discount gamma_c. Short (~10 steps = 2 s, the SI's look-ahead scale) so that v_c(s) measures
+    """Cost discount gamma_c (0: v_c(s) = E[c(s, a)], the per-step SI condition of Ma et al.). Short (~10 steps = 2 s, the SI's look-ahead scale) so that v_c(s) measures
     the state-wise SI constraint near s rather than the -0.1 floor accumulated over 20 s."""
     gae_lambda: float = 0.95
     """GAE lambda of both advantages."""
@@ -55,10 +68,21 @@ class PPOHyperparameters:
     multiplier_lr: float = 1e-3
     """Adam learning rate of lambda(s). With Adam the output of a 2x64 net moves by up to ~65 x lr per
     step, so 1e-3 lets lambda(s) cross [0, 50] within a few hundred iterations."""
+    multiplier_lr_final: float | None = None
+    """If set, the multiplier learning rate decays linearly from ``multiplier_lr`` to this over the
+    training iterations (Feasible Actor-Critic: 5e-6 -> 1e-6). null: constant."""
     multiplier_update_every: int = 1
-    """lambda(s) takes one epoch of minibatch steps (the first) every this many iterations, while the
-    actor and critics take ``epochs`` of them: the slower timescale of the dual ascent (FAC: dual
-    ascent every 12 updates)."""
+    """lambda(s) takes ``multiplier_steps`` Adam steps every this many iterations, while the actor and
+    critics take ``epochs`` x (frames_per_batch / minibatch_size) of them: the slower timescale of the
+    dual ascent (FAC: dual ascent every 12 updates)."""
+    multiplier_steps: int = 4
+    """Adam steps of lambda(s) per multiplier update, one on each of the iteration's first minibatches
+    (4: the first epoch; Ma et al.: 5 per epoch). At most epochs x minibatches per epoch."""
+    multiplier_max_grad_norm: float | None = None
+    """Gradient-norm clip of lambda(s) (Feasible Actor-Critic: 3). null: no clip."""
+    violation_normalization: bool = False
+    """Divide the violation v_c(s) - d by its minibatch standard deviation before the clip (Ma et al.),
+    so the clip [-violation_clip_low, violation_clip_high] is in standard deviations."""
     multiplier_loss_on_logit: bool = False
     """Take the multiplier loss on softplus's input z(s) rather than on lambda(s) (same fixed points; the
     step does not vanish where lambda ~ 0). False: FAC / Ma et al. as published."""
@@ -105,22 +129,28 @@ class PPOHyperparameters:
     with a checkpoint there resumes it (the agent and scenario config must be the same)."""
 
     def __post_init__(self) -> None:
-        _check(self.num_envs > 0, "num_envs", self.num_envs, "must be > 0")
+        check_fields(
+            self, name=TEXT, hidden_sizes=Vector(at_least(1), min_length=1), initial_std=POSITIVE, gamma=DISCOUNT,
+            cost_gamma=UNIT_INTERVAL, gae_lambda=UNIT_INTERVAL,
+            clip_epsilon=Interval(0.0, 1.0, low_open=True, high_open=True), entropy_coef=NON_NEGATIVE,
+            actor_lr=POSITIVE, critic_lr=POSITIVE, multiplier_lr=POSITIVE, multiplier_lr_final=POSITIVE,
+            multiplier_update_every=at_least(1), multiplier_steps=at_least(1), multiplier_max_grad_norm=POSITIVE,
+            lambda_max=POSITIVE, initial_lambda=POSITIVE, cost_threshold=FINITE, violation_clip_low=NON_NEGATIVE,
+            violation_clip_high=POSITIVE, max_grad_norm=POSITIVE, num_envs=at_least(1), frames_per_batch=at_least(1),
+            total_frames=at_least(1), minibatch_size=at_least(1), epochs=at_least(1), checkpoint_every=at_least(1),
+            seed=NON_NEGATIVE, num_threads=at_least(1), sim_threads=at_least(1), output_dir=TEXT,
+        )
         _check(self.frames_per_batch % self.num_envs == 0, "frames_per_batch", self.frames_per_batch,
                f"must be a multiple of num_envs={self.num_envs}")
         _check(self.frames_per_batch % self.minibatch_size == 0, "minibatch_size", self.minibatch_size,
                f"must divide frames_per_batch={self.frames_per_batch}")
         _check(self.total_frames >= self.frames_per_batch, "total_frames", self.total_frames,
                f"must be >= frames_per_batch={self.frames_per_batch}")
-        _check(0.0 < self.gamma <= 1.0, "gamma", self.gamma, "must lie in (0, 1]")
-        _check(0.0 < self.cost_gamma <= 1.0, "cost_gamma", self.cost_gamma, "must lie in (0, 1]")
-        _check(0.0 <= self.gae_lambda <= 1.0, "gae_lambda", self.gae_lambda, "must lie in [0, 1]")
         _check(0.0 < self.initial_lambda < self.lambda_max, "initial_lambda", self.initial_lambda,
                "must lie in (0, lambda_max)")
-        _check(self.multiplier_update_every > 0, "multiplier_update_every", self.multiplier_update_every, "must be > 0")
-        _check(self.checkpoint_every > 0, "checkpoint_every", self.checkpoint_every, "must be > 0")
-        _check(self.epochs > 0, "epochs", self.epochs, "must be > 0")
-        _check(self.initial_std > 0.0, "initial_std", self.initial_std, "must be > 0")
+        _check(0 < self.multiplier_steps <= self.epochs * (self.frames_per_batch // self.minibatch_size),
+               "multiplier_steps", self.multiplier_steps,
+               f"must lie in [1, epochs x minibatches per epoch = {self.epochs * (self.frames_per_batch // self.minibatch_size)}]")
 
     @property
     def iterations(self) -> int:

@@ -12,7 +12,8 @@ GAEs over the same batch):
     loss_objective   = mean_t[ -(g_r(t) - lam_t g_c(t)) / (1 + lam_t) ]
     loss_critic      = mean_t[ (v(s_t) - R_t)^2 ]                     R_t: reward GAE target
     loss_cost_critic = mean_t[ (v_c(s_t) - R^c_t)^2 ]                 R^c_t: cost GAE target
-    loss_multiplier  = -mean_t[ lambda(s_t) * stop_grad(clip(v_c(s_t) - d, -clip_low, clip_high)) ]
+    violation_t      = v_c(s_t) - d,   divided by its minibatch std with ``violation_normalization``
+    loss_multiplier  = -mean_t[ lambda(s_t) * stop_grad(clip(violation_t, -clip_low, clip_high)) ]
     loss_entropy     = -entropy_coeff * mean_t[ H(pi(.|s_t)) ]
 
 With ``multiplier_loss_on_logit`` the multiplier loss is taken on the pre-softplus logit z(s) instead,
@@ -20,6 +21,10 @@ With ``multiplier_loss_on_logit`` the multiplier loss is taken on the pre-softpl
 direction (z <= LOGIT_FLOOR and satisfied, lambda >= lambda_max and violated). The fixed points are
 the same; the step no longer shrinks by sigmoid(z) = dlambda/dz, which is ~0.02 at lambda = 0.02, so
 states whose lambda has collapsed to ~0 can rise again as fast as any other.
+
+With ``violation_normalization`` (Ma et al.'s Safety_Index_Synthesis) the violation is divided by
+its standard deviation over the minibatch before the clip, so the step of lambda(s) does not depend on
+the units or the spread of v_c; the clip then bounds it in standard deviations.
 
 The multiplier loss is Feasible Actor-Critic's (Ma et al. 2021) dual ascent on the state-wise
 constraint v_c(s) <= d: gradient descent on it raises lambda(s) where the constraint is violated
@@ -51,6 +56,13 @@ LOGIT_FLOOR = -5.0
 """Lower bound of the multiplier logit under ``multiplier_loss_on_logit`` (softplus(-5) = 0.0067)."""
 
 
+def pearson(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Pearson correlation of two 1-D tensors (0 where either is constant)."""
+    x, y = x - x.mean(), y - y.mean()
+    denominator = (x.pow(2).sum() * y.pow(2).sum()).sqrt()
+    return torch.where(denominator > 0, (x * y).sum() / denominator.clamp_min(1e-30), torch.zeros_like(denominator))
+
+
 class PPOLSILoss(ClipPPOLoss):
     """Clipped PPO (``constrained=False``) or PPO-L-SI (``constrained=True``).
 
@@ -70,6 +82,7 @@ class PPOLSILoss(ClipPPOLoss):
         lambda_max: cap of lambda(s) (for the share-at-cap diagnostic; the network applies it).
         samples_mc_entropy: Monte-Carlo samples for the entropy (TanhNormal has no closed form).
         multiplier_loss_on_logit: take the multiplier loss on the pre-softplus logit (see module doc).
+        violation_normalization: divide v_c(s) - d by its minibatch std before the clip (Ma et al.).
     """
 
     def __init__(
@@ -90,6 +103,7 @@ class PPOLSILoss(ClipPPOLoss):
         lambda_max: float = 50.0,
         samples_mc_entropy: int = 1,
         multiplier_loss_on_logit: bool = False,
+        violation_normalization: bool = False,
     ) -> None:
         super().__init__(
             actor_network, critic_network, clip_epsilon=clip_epsilon, entropy_bonus=True,
@@ -103,6 +117,7 @@ class PPOLSILoss(ClipPPOLoss):
         self.violation_clip = violation_clip
         self.lambda_max = lambda_max
         self.multiplier_loss_on_logit = multiplier_loss_on_logit
+        self.violation_normalization = violation_normalization
         if constrained:
             if cost_critic_network is None or multiplier_network is None:
                 raise ValueError("constrained=True needs cost_critic_network and multiplier_network")
@@ -120,7 +135,7 @@ class PPOLSILoss(ClipPPOLoss):
         keys = ["loss_objective", "loss_critic", "loss_entropy", "entropy", "clip_fraction", "kl_approx"]
         if self.constrained:
             keys += ["loss_cost_critic", "loss_multiplier", "lambda_mean", "lambda_max", "lambda_share_at_max",
-                     "violation_share"]
+                     "violation_share", "lambda_cost_value_corr"]
         return keys
 
     @out_keys.setter
@@ -157,8 +172,10 @@ class PPOLSILoss(ClipPPOLoss):
 
             cost_value = self.cost_critic_network(td.select(*self.cost_critic_network.in_keys)).get(COST_VALUE_KEY)
             out["loss_cost_critic"] = (cost_value - td.get(COST_VALUE_TARGET_KEY)).pow(2).mean()
-            violation = (cost_value.detach() - self.cost_threshold).clamp(-self.violation_clip[0],
-                                                                          self.violation_clip[1])
+            violation = cost_value.detach() - self.cost_threshold
+            if self.violation_normalization:
+                violation = violation / violation.std().clamp_min(1e-8)
+            violation = violation.clamp(-self.violation_clip[0], self.violation_clip[1])
             if self.multiplier_loss_on_logit:
                 at_bound = ((logit <= LOGIT_FLOOR) & (violation < 0)) | ((lam >= self.lambda_max) & (violation > 0))
                 out["loss_multiplier"] = -(torch.where(at_bound, logit.detach(), logit) * violation).mean()
@@ -168,6 +185,7 @@ class PPOLSILoss(ClipPPOLoss):
             out["lambda_max"] = lam.max()
             out["lambda_share_at_max"] = (lam >= self.lambda_max * (1.0 - 1e-6)).float().mean()
             out["violation_share"] = (violation > 0).float().mean()
+            out["lambda_cost_value_corr"] = pearson(lam.flatten(), cost_value.detach().flatten())
         else:
             out["loss_objective"] = (-gain_reward).mean()
 

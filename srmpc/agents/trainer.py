@@ -7,7 +7,8 @@ Per iteration:
      episodes give the logged episode metrics;
   3. two GAEs (reward and, if constrained, cost) under no_grad;
   4. ``epochs`` passes of shuffled minibatches: actor + critics step on every minibatch; lambda(s)
-     steps during the first epoch of every ``multiplier_update_every``-th iteration (slow timescale);
+     steps on the first ``multiplier_steps`` minibatches of every ``multiplier_update_every``-th
+     iteration (slow timescale), its learning rate decaying linearly if ``multiplier_lr_final`` is set;
   5. NaN/Inf check of every loss term and parameter; metrics to MLflow; checkpoint every K iterations.
 
 The env must provide "observation" (B, obs_dim), a Bounded "action" spec, and in "next": "reward",
@@ -18,7 +19,9 @@ from __future__ import annotations
 
 import copy
 import csv
+import json
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -36,6 +39,16 @@ from srmpc.agents.networks import COST_VALUE_KEY, VALUE_KEY, make_actor, make_mu
 from srmpc.agents.ppo_lsi_loss import PPOLSILoss
 
 METRICS_CSV = "metrics.csv"
+MULTIPLIER_JSON = "multiplier.json"
+MULTIPLIER_SAMPLES_CSV = "multiplier_samples.csv"
+
+
+def write_json(path: Path, data: dict) -> None:
+    """Write ``data`` as indented JSON via a temporary file and rename."""
+    temporary = path.with_name(path.name + ".tmp")
+    finite = {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in data.items()}
+    temporary.write_text(json.dumps(finite, indent=2) + "\n")
+    os.replace(temporary, path)
 
 
 class NonFiniteError(RuntimeError):
@@ -56,6 +69,7 @@ def build_loss(observation_dim: int, action_low: torch.Tensor, action_high: torc
         entropy_coeff=hp.entropy_coef, gamma=hp.gamma, gae_lambda=hp.gae_lambda, cost_gamma=hp.cost_gamma,
         cost_threshold=hp.cost_threshold, violation_clip=(hp.violation_clip_low, hp.violation_clip_high),
         lambda_max=hp.lambda_max, multiplier_loss_on_logit=hp.multiplier_loss_on_logit,
+        violation_normalization=hp.violation_normalization,
     )
 
 
@@ -256,6 +270,10 @@ class Trainer:
         self.loss.compute_advantages(batch)
         flat = batch.reshape(-1)
         update_multiplier = hp.constrained and (self.iteration + 1) % hp.multiplier_update_every == 0
+        if update_multiplier and hp.multiplier_lr_final is not None:
+            progress = self.iteration / max(hp.iterations - 1, 1)
+            for group in self.optimizers["multiplier"].param_groups:
+                group["lr"] = hp.multiplier_lr + progress * (hp.multiplier_lr_final - hp.multiplier_lr)
         sums: dict[str, float] = {}
         count = 0
         for epoch in range(hp.epochs):
@@ -271,7 +289,9 @@ class Trainer:
                 torch.nn.utils.clip_grad_norm_(self.groups["critic"], hp.max_grad_norm)
                 self.optimizers["actor"].step()
                 self.optimizers["critic"].step()
-                if update_multiplier and epoch == 0:
+                if update_multiplier and count < hp.multiplier_steps:
+                    if hp.multiplier_max_grad_norm is not None:
+                        torch.nn.utils.clip_grad_norm_(self.groups["multiplier"], hp.multiplier_max_grad_norm)
                     self.optimizers["multiplier"].step()
                 for k, v in terms.items():
                     sums[k] = sums.get(k, 0.0) + float(v.detach())
@@ -293,6 +313,7 @@ class Trainer:
             bar = tqdm(total=hp.iterations * hp.frames_per_batch, initial=self.frames, unit="step",
                        desc=f"train {hp.name}", unit_scale=True)
         metrics: dict[str, float] = {}
+        batch = None
         try:
             while self.iteration < stop:
                 started = time.perf_counter()
@@ -323,7 +344,23 @@ class Trainer:
         finally:
             if bar is not None:
                 bar.close()
+        if hp.constrained and batch is not None and self.iteration == hp.iterations:
+            self.write_multiplier_diagnostic(batch)
         return metrics
+
+    def write_multiplier_diagnostic(self, batch: TensorDictBase) -> None:
+        """``multiplier.json`` and ``multiplier_samples.csv`` from the last batch (see multiplier_diagnostic)."""
+        from srmpc.agents.multiplier_diagnostic import multiplier_diagnostic
+
+        steps = batch.shape[1]
+        stats, samples = multiplier_diagnostic(self.loss, batch, horizon_steps=min(10, steps), seed=self.hp.seed)
+        write_json(self.output_dir / MULTIPLIER_JSON, stats)
+        temporary = self.output_dir / (MULTIPLIER_SAMPLES_CSV + ".tmp")
+        with temporary.open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(list(samples))
+            writer.writerows(zip(*samples.values(), strict=True))
+        os.replace(temporary, self.output_dir / MULTIPLIER_SAMPLES_CSV)
 
     def close(self) -> None:
         self.collector.shutdown()
@@ -347,7 +384,8 @@ class Trainer:
 
     CSV_COLUMNS = ("iteration", "frames", "wall_s", "episodes", "episode/return", "episode/train_return",
                    "episode/cost_return", "episode/si_cost_return", "episode/steps", "episode/vx", "cost_rate",
-                   "step/reward", "env_steps_per_s")
+                   "step/reward", "env_steps_per_s", "train/lambda_mean", "train/lambda_share_at_max",
+                   "train/violation_share", "train/lambda_cost_value_corr")
 
     def _truncate_csv(self, path: Path) -> None:
         """Keep the rows up to the resumed iteration (a crash may have left later ones)."""

@@ -1,8 +1,10 @@
 """``stage=evaluate``: closed-loop episodes of one controller, resumable, tracked in MLflow.
 
 Files in the output directory:
-- ``config.yaml``: the composed config the episodes belong to (a different config refuses to
-  write there, so earlier results are never mixed or lost);
+- ``config.yaml``: the composed config the episodes belong to, plus ``policy_sha256`` for a
+  controller that runs a policy; a config that differs in what the episodes depend on (see
+  :func:`evaluation_identity`: not the training hyperparameters, MLflow settings or output paths)
+  refuses to write there, so earlier results are never mixed or lost;
 - ``episodes.csv``: one row per finished episode, appended and flushed as each one ends, so an
   interrupted run keeps every finished episode and the next run with the same config resumes;
 - ``summary.json``: the paper's table metrics over all episodes, replaced atomically at the end.
@@ -11,6 +13,8 @@ Files in the output directory:
 from __future__ import annotations
 
 import csv
+import functools
+import hashlib
 import json
 import os
 from dataclasses import fields
@@ -18,6 +22,7 @@ from pathlib import Path
 
 import gymnasium
 import numpy as np
+import yaml
 
 from srmpc import SCENARIO_ID
 from srmpc.config.compose import ConfigError
@@ -28,7 +33,7 @@ from srmpc.controllers.ltv_mpc import LtvMpcSceneController, ocp_config
 from srmpc.controllers.outcomes import OUTCOME_KEYS
 from srmpc.controllers.policy import PolicyController
 from srmpc.controllers.srmpc import SceneSource, SrmpcController
-from srmpc.evaluation import EpisodeRecord, evaluate
+from srmpc.evaluation import EpisodeRecord, evaluate, evaluate_in_workers
 from srmpc.metrics import EpisodeMetrics, aggregate_metrics
 from srmpc.mpc.controller import LtvMpcController
 from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights, lane_keeping_tracking_reference
@@ -69,6 +74,18 @@ def build_planner_objects(config: Config) -> tuple[OcpConfig, float]:
     )
     ocp = ocp_config(scenario, planner.horizon_steps, planner.max_vehicles, weights, geometry)
     return ocp, float(road.LANE_CENTERS[road.RIGHT_LANE])
+
+
+def policy_file(config: Config) -> tuple[Path, str, str] | None:
+    """(file, agent, config key) of the policy the evaluated controller runs; None when it runs none."""
+    name = config.evaluation.controller
+    if name is ControllerName.srmpc:
+        agent, path, key = config.srmpc.policy.value, config.srmpc.policy_path, "srmpc.policy_path"
+    elif name in (ControllerName.ppo_lsi, ControllerName.ppo):
+        agent, path, key = name.value, config.evaluation.policy_path, "evaluation.policy_path"
+    else:
+        return None
+    return (Path(path) if path else REPOSITORY / "results" / "training" / agent / "policy.pt"), agent, key
 
 
 def load_policy(config: Config, agent: str, path: str | None, key: str) -> MlpPolicy:
@@ -132,6 +149,31 @@ def make_env(config: Config) -> gymnasium.Env:
     return gymnasium.make(SCENARIO_ID, params=config.scenario)
 
 
+def make_env_and_controller(config: Config) -> tuple[gymnasium.Env, Controller]:
+    """The scenario on ``evaluation.simulator`` and ``evaluation.controller`` for it: what an evaluation,
+    and each of its worker processes, builds once."""
+    env = make_env(config)
+    try:
+        return env, build_controller(config, env)
+    except Exception:
+        env.close()
+        raise
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask: a SLURM allocation, taskset)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def evaluation_workers(config: Config, remaining: int) -> int:
+    """Worker processes for ``remaining`` episodes: ``evaluation.workers`` (0: every available core),
+    at most one per episode; 1 means this process runs them."""
+    requested = config.evaluation.workers
+    if requested < 0:
+        raise ConfigError(f"evaluation.workers={requested}: must be >= 0 (0: one per CPU core, 1: this process)")
+    return max(1, min(requested or available_cores(), remaining))
+
+
 def atomic_write_text(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` via a temporary file and rename, so readers never see half a file."""
     temporary = path.with_name(path.name + ".tmp")
@@ -161,13 +203,43 @@ def read_finished_episodes(path: Path) -> list[EpisodeRecord]:
     return records
 
 
+NOT_IDENTITY = (("agent",), ("tracking",), ("evaluation", "output_dir"), ("evaluation", "workers"))
+"""Config entries that do not change an evaluation's episodes: the training hyperparameters (the
+policy enters through its file's hash), MLflow settings, where the results go and how many processes
+produce them."""
+
+
+def evaluation_identity(config_yaml: str) -> dict:
+    """What an evaluation's episodes depend on: the config without :data:`NOT_IDENTITY`, plus
+    ``policy_sha256`` where the controller runs a policy."""
+    identity = yaml.safe_load(config_yaml) or {}
+    for path in NOT_IDENTITY:
+        node = identity
+        for key in path[:-1]:
+            node = node.get(key, {}) if isinstance(node, dict) else {}
+        if isinstance(node, dict):
+            node.pop(path[-1], None)
+    return identity
+
+
+def identity_yaml(config: Config, config_yaml: str) -> str:
+    """``config_yaml`` with the SHA-256 of the evaluated policy file appended (see evaluation_identity)."""
+    policy = policy_file(config)
+    if policy is None or not policy[0].is_file():
+        return config_yaml
+    return config_yaml + f"policy_sha256: {hashlib.sha256(policy[0].read_bytes()).hexdigest()}\n"
+
+
 def prepare_output_dir(output_dir: Path, config_yaml: str) -> list[EpisodeRecord]:
-    """Claim ``output_dir`` for this config; return the episodes a previous run already finished."""
+    """Claim ``output_dir`` for this config; return the episodes a previous run already finished.
+
+    A directory whose ``config.yaml`` has another :func:`evaluation_identity` is refused (its episodes
+    belong to another scenario, planner, controller, seed or policy)."""
     output_dir.mkdir(parents=True, exist_ok=True)
     config_path = output_dir / "config.yaml"
-    if config_path.exists() and config_path.read_text() != config_yaml:
+    if config_path.exists() and evaluation_identity(config_path.read_text()) != evaluation_identity(config_yaml):
         raise ConfigError(
-            f"evaluation.output_dir={output_dir}: holds results of a different config ({config_path}); "
+            f"evaluation.output_dir={output_dir}: holds results of a different config or policy ({config_path}); "
             "choose another directory"
         )
     atomic_write_text(config_path, config_yaml)
@@ -189,15 +261,17 @@ def _row(record: EpisodeRecord) -> list:
 
 
 def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run, progress: bool = True) -> dict:
-    """Evaluate, appending to ``output_dir``; returns the summary written to ``summary.json``."""
-    env = make_env(config)
-    try:
-        controller = build_controller(config, env)
-    except Exception:
-        env.close()
-        raise
-    finished = prepare_output_dir(output_dir, config_yaml)
+    """Evaluate, appending to ``output_dir``; returns the summary written to ``summary.json``.
+
+    The episodes run in ``evaluation.workers`` processes (:func:`evaluation_workers`); this process
+    alone writes ``episodes.csv`` (in episode order, each row fsync'd), logs to MLflow and shows the
+    progress bar, so the file is the same, and resumes the same, whatever the number of workers."""
+    evaluation_workers(config, 1)  # a bad evaluation.workers fails before anything is written
+    env, controller = make_env_and_controller(config)  # also in the parent: a bad policy fails here, in one line
+    finished = prepare_output_dir(output_dir, identity_yaml(config, config_yaml))
     episodes = config.evaluation.episodes
+    workers = evaluation_workers(config, episodes - len(finished))
+    run.set_tags({"evaluation_workers": str(workers)})
     if finished:
         run.set_tags({"resumed_from_episode": str(len(finished))})
     csv_handle = (output_dir / "episodes.csv").open("a", newline="")
@@ -218,9 +292,12 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
             bar.update(1)
 
     try:
-        records = finished + evaluate(
-            env, controller, episodes, config.evaluation.seed, on_episode=on_episode, first_episode=len(finished)
-        )
+        if workers > 1:
+            setup = functools.partial(make_env_and_controller, config)
+            new = evaluate_in_workers(setup, episodes, config.evaluation.seed, workers, on_episode, len(finished))
+        else:
+            new = evaluate(env, controller, episodes, config.evaluation.seed, on_episode, len(finished))
+        records = finished + new
     finally:
         csv_handle.close()
         env.close()
