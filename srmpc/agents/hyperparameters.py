@@ -148,9 +148,9 @@ class PPOHyperparameters:
                f"must be >= frames_per_batch={self.frames_per_batch}")
         _check(0.0 < self.initial_lambda < self.lambda_max, "initial_lambda", self.initial_lambda,
                "must lie in (0, lambda_max)")
-        _check(0 < self.multiplier_steps <= self.epochs * (self.frames_per_batch // self.minibatch_size),
-               "multiplier_steps", self.multiplier_steps,
-               f"must lie in [1, epochs x minibatches per epoch = {self.epochs * (self.frames_per_batch // self.minibatch_size)}]")
+        steps_per_iteration = self.epochs * (self.frames_per_batch // self.minibatch_size)
+        _check(self.multiplier_steps <= steps_per_iteration, "multiplier_steps", self.multiplier_steps,
+               f"must lie in [1, epochs x minibatches per epoch = {steps_per_iteration}]")
 
     @property
     def iterations(self) -> int:

@@ -1,8 +1,9 @@
 """Structured-config schema of ``conf/``. Registered in Hydra's ConfigStore as ``config_schema``.
 
 A wrong type, an unknown key or a bad enum value in any YAML file or override is rejected at
-composition, naming the key. The entry points convert these nodes into the plain dataclasses
-that library code takes (``OmegaConf.to_object``).
+composition, naming the key; so is a value outside what the field declares in its ``__post_init__``
+(``srmpc.config.validation``: finite numbers in a range, list lengths, non-empty strings). The entry
+points convert these nodes into the plain dataclasses that library code takes (``OmegaConf.to_object``).
 """
 
 from __future__ import annotations
@@ -13,7 +14,9 @@ from enum import Enum
 from hydra.core.config_store import ConfigStore
 
 from srmpc.agents.hyperparameters import PPOHyperparameters
-from srmpc.controllers.srmpc import SrmpcSettings
+from srmpc.config.validation import NON_NEGATIVE, TEXT, Interval, Vector, at_least, check_fields
+from srmpc.controllers.srmpc import MAX_RELINEARIZATIONS, SrmpcSettings
+from srmpc.scenario.observation import SLOT_COUNT
 from srmpc.scenario.parameters import ScenarioParameters
 
 
@@ -67,7 +70,7 @@ class PlannerConfig:
     """QP solver: riccati_ipm (default, structure-exploiting interior point), piqp_native, osqp_native,
     or via qpsolvers osqp, clarabel, piqp, proxqp."""
     max_vehicles: int = 6
-    """Other-vehicle slots in the QP (the scenario observes at most 6)."""
+    """Other-vehicle slots in the QP (the scenario observes at most 6, so at least 6)."""
     state_weights: list[float] = field(default_factory=lambda: [0.0, 0.5, 20.0, 0.5])
     """Q diagonal for (x [1/m^2], y [1/m^2], heading [1/rad^2], speed [s^2/m^2]); x is not tracked."""
     input_weights: list[float] = field(default_factory=lambda: [50.0, 0.05])
@@ -92,16 +95,16 @@ class PlannerConfig:
     def __post_init__(self) -> None:
         from srmpc.mpc.solvers import available_solvers
 
+        check_fields(
+            self, horizon_steps=at_least(2), solver=TEXT, max_vehicles=at_least(SLOT_COUNT),
+            state_weights=Vector(NON_NEGATIVE, length=4), input_weights=Vector(NON_NEGATIVE, length=2),
+            input_rate_weights=Vector(NON_NEGATIVE, length=2), collision_slack_linear=NON_NEGATIVE,
+            collision_slack_quadratic=NON_NEGATIVE, safety_slack_linear=NON_NEGATIVE,
+            safety_slack_quadratic=NON_NEGATIVE, n_ego_circles=at_least(2),
+            safety_margin_longitudinal_m=NON_NEGATIVE, safety_margin_lateral_m=NON_NEGATIVE,
+        )
         if self.solver not in available_solvers():
             raise ValueError(f"solver={self.solver!r}: unknown QP solver; available: {', '.join(available_solvers())}")
-        if self.horizon_steps < 2:
-            raise ValueError(f"horizon_steps={self.horizon_steps}: must be >= 2")
-        if self.n_ego_circles < 2:
-            raise ValueError(f"n_ego_circles={self.n_ego_circles}: the ego needs at least 2 circles")
-        for key, size in (("state_weights", 4), ("input_weights", 2), ("input_rate_weights", 2)):
-            values = list(getattr(self, key))
-            if len(values) != size or min(values) < 0:
-                raise ValueError(f"{key}={values}: needs {size} non-negative weights")
 
 
 @dataclass
@@ -118,6 +121,10 @@ class SrmpcConfig(SrmpcSettings):
     """Its policy.pt; null means results/training/<policy>/policy.pt."""
     variant: str = "paper"
     """Name of the variant, used in run names and tables (the file name in conf/srmpc/)."""
+
+    def __post_init__(self) -> None:
+        check_fields(self, relinearizations=Interval(0, MAX_RELINEARIZATIONS), policy_path=TEXT, variant=TEXT)
+        super().__post_init__()
 
 
 class SimulatorName(Enum):
@@ -149,10 +156,7 @@ class EvaluationConfig:
     directory that holds a partial run of the same config resumes it."""
 
     def __post_init__(self) -> None:
-        if self.episodes < 1:
-            raise ValueError(f"episodes={self.episodes}: must be >= 1")
-        if self.seed < 0:
-            raise ValueError(f"seed={self.seed}: must be >= 0 (episode i is reset with seed + i)")
+        check_fields(self, episodes=at_least(1), seed=NON_NEGATIVE, policy_path=TEXT, output_dir=TEXT)
 
 
 @dataclass
@@ -167,6 +171,9 @@ class TrackingConfig:
     """Artifact root for new experiments (relative paths are taken from the working directory)."""
     experiment_name: str = "srmpc"
     """MLflow experiment."""
+
+    def __post_init__(self) -> None:
+        check_fields(self, uri=TEXT, artifact_location=TEXT, experiment_name=TEXT)
 
 
 @dataclass

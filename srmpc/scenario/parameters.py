@@ -9,6 +9,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from srmpc.config.validation import (
+    NON_NEGATIVE,
+    NON_POSITIVE,
+    POSITIVE,
+    TEXT,
+    UNIT_INTERVAL,
+    Interval,
+    at_least,
+    check_fields,
+)
 from srmpc.scenario import road
 
 
@@ -34,9 +44,7 @@ class RewardParameters:
     """Scale of the exponentiation r = exp(r' / scale) [units of r']."""
 
     def __post_init__(self) -> None:
-        _check(0.0 <= self.speed_weight <= 1.0, "speed_weight", self.speed_weight, "must lie in [0, 1]")
-        _check(self.scale > 0.0, "scale", self.scale, "must be > 0")
-        _check(self.vx_ref_mps > 0.0, "vx_ref_mps", self.vx_ref_mps, "must be > 0")
+        check_fields(self, vx_ref_mps=POSITIVE, speed_weight=UNIT_INTERVAL, scale=POSITIVE)
 
 
 @dataclass
@@ -74,13 +82,8 @@ class SafetyIndexParameters:
     """Lower clip of the cost, the paper's -0.1 (keeps the policy from becoming too conservative)."""
 
     def __post_init__(self) -> None:
-        _check(self.n > 0.0, "n", self.n, "must be > 0")
-        _check(self.d_min_m >= 0.0, "d_min_m", self.d_min_m, "must be >= 0")
-        _check(self.sigma_m >= 0.0, "sigma_m", self.sigma_m, "must be >= 0")
-        _check(self.edge_d_min_m >= 0.0, "edge_d_min_m", self.edge_d_min_m, "must be >= 0")
-        _check(self.k_s >= 0.0, "k_s", self.k_s, "must be >= 0")
-        _check(self.eta >= 0.0, "eta", self.eta, "must be >= 0")
-        _check(self.cost_floor <= 0.0, "cost_floor", self.cost_floor, "must be <= 0")
+        check_fields(self, sigma_m=NON_NEGATIVE, d_min_m=NON_NEGATIVE, edge_d_min_m=NON_NEGATIVE, n=POSITIVE,
+                     k_s=NON_NEGATIVE, eta=NON_NEGATIVE, cost_floor=NON_POSITIVE)
 
 
 @dataclass
@@ -138,14 +141,20 @@ class ScenarioParameters:
             self.reward = RewardParameters(**self.reward)
         if isinstance(self.safety_index, dict):
             self.safety_index = SafetyIndexParameters(**self.safety_index)
-        _check(self.vehicles_count >= 1, "vehicles_count", self.vehicles_count, "must be >= 1")
+        check_fields(
+            self, traffic=TEXT, vehicles_count=at_least(1), vehicles_behind_ego=NON_NEGATIVE,
+            mean_spawn_gap_m=POSITIVE, other_speed_min_mps=NON_NEGATIVE, other_speed_max_mps=NON_NEGATIVE,
+            ego_speed_min_mps=NON_NEGATIVE, ego_speed_max_mps=Interval(0.0, road.MAX_SPEED),
+            simulation_frequency_hz=at_least(1), policy_frequency_hz=at_least(1), episode_steps=at_least(1),
+            steering_max_rad=Interval(0.0, math.pi / 2, low_open=True, high_open=True),
+            acceleration_min_mps2=NON_POSITIVE, acceleration_max_mps2=NON_NEGATIVE, perception_range_m=POSITIVE,
+        )
         _check(
             0 <= self.vehicles_behind_ego <= self.vehicles_count,
             "vehicles_behind_ego",
             self.vehicles_behind_ego,
             f"must lie in [0, vehicles_count={self.vehicles_count}]",
         )
-        _check(self.mean_spawn_gap_m > 0, "mean_spawn_gap_m", self.mean_spawn_gap_m, "must be > 0")
         for low_key, high_key in (
             ("other_speed_min_mps", "other_speed_max_mps"),
             ("ego_speed_min_mps", "ego_speed_max_mps"),
@@ -153,10 +162,6 @@ class ScenarioParameters:
         ):
             low, high = getattr(self, low_key), getattr(self, high_key)
             _check(low <= high, low_key, low, f"must be <= {high_key}={high}")
-        _check(self.other_speed_min_mps >= 0, "other_speed_min_mps", self.other_speed_min_mps, "must be >= 0")
-        _check(self.ego_speed_max_mps <= road.MAX_SPEED, "ego_speed_max_mps", self.ego_speed_max_mps,
-               f"must be <= {road.MAX_SPEED}")
-        _check(self.policy_frequency_hz > 0, "policy_frequency_hz", self.policy_frequency_hz, "must be > 0")
         _check(
             self.simulation_frequency_hz >= self.policy_frequency_hz
             and self.simulation_frequency_hz % self.policy_frequency_hz == 0,
@@ -164,12 +169,8 @@ class ScenarioParameters:
             self.simulation_frequency_hz,
             f"must be a multiple of policy_frequency_hz={self.policy_frequency_hz}",
         )
-        _check(self.episode_steps >= 1, "episode_steps", self.episode_steps, "must be >= 1")
-        _check(0 < self.steering_max_rad < math.pi / 2, "steering_max_rad", self.steering_max_rad,
-               "must lie in (0, pi/2)")
         _check(self.acceleration_min_mps2 < self.acceleration_max_mps2, "acceleration_min_mps2",
                self.acceleration_min_mps2, "must be < acceleration_max_mps2")
-        _check(self.perception_range_m > 0, "perception_range_m", self.perception_range_m, "must be > 0")
 
     @property
     def control_period_s(self) -> float:
