@@ -4,7 +4,9 @@ A checkpoint holds the networks (the loss module's state dict), the three optimi
 and shuffling RNG states, the collector's carrier (the current observations of every env), the
 simulator's runtime state (if the env exposes ``runtime_state()`` / ``load_runtime_state()``), the
 per-env running episode sums, the iteration and frame counters. Files are written atomically
-(temporary file + rename), so a crash mid-write leaves the previous checkpoint intact.
+(temporary file + rename), so a crash mid-write leaves the previous checkpoint intact. A file that
+cannot be read back (truncated, corrupted, not written by this module) raises :class:`CheckpointError`,
+one line naming the path.
 """
 
 from __future__ import annotations
@@ -15,8 +17,27 @@ from typing import Any
 
 import torch
 
+from srmpc.errors import FileFault
+
 CHECKPOINT_NAME = "last.pt"
 POLICY_NAME = "policy.pt"
+
+
+class CheckpointError(FileFault):
+    """A checkpoint or policy file that cannot be loaded; the message is one line naming the file."""
+
+
+def _load(path: Path, what: str) -> dict[str, Any]:
+    try:
+        saved = torch.load(path, weights_only=False)
+    except OSError:
+        raise
+    except Exception as error:  # noqa: BLE001  (torch raises RuntimeError, UnpicklingError, EOFError, ...)
+        reason = (str(error).splitlines() or [type(error).__name__])[0]
+        raise CheckpointError(f"{path}: not a readable {what} (truncated or corrupted? {reason})") from error
+    if not isinstance(saved, dict):
+        raise CheckpointError(f"{path}: not a {what} (holds a {type(saved).__name__})")
+    return saved
 
 
 def atomic_torch_save(obj: Any, path: Path) -> None:
@@ -39,7 +60,7 @@ def load_checkpoint(directory: Path) -> dict[str, Any] | None:
     path = directory / CHECKPOINT_NAME
     if not path.exists():
         return None
-    return torch.load(path, weights_only=False)
+    return _load(path, "training checkpoint (delete it to start over)")
 
 
 def save_policy(actor_state: dict[str, torch.Tensor], metadata: dict[str, Any], path: Path) -> None:
@@ -51,7 +72,12 @@ def load_actor(path: Path):
     """Rebuild the actor (a ProbabilisticActor) saved in a ``policy.pt`` by :func:`save_policy`."""
     from srmpc.agents.networks import make_actor
 
-    saved = torch.load(path, weights_only=False)
-    actor = make_actor(saved["observation_dim"], saved["action_low"], saved["action_high"], saved["hidden_sizes"])
-    actor.load_state_dict(saved["actor"])
+    saved = _load(path, "policy file")
+    try:
+        actor = make_actor(saved["observation_dim"], saved["action_low"], saved["action_high"], saved["hidden_sizes"])
+        actor.load_state_dict(saved["actor"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        reason = (str(error).splitlines() or [type(error).__name__])[0]
+        raise CheckpointError(f"{path}: not a policy file written by training ({type(error).__name__}: {reason})"
+                              ) from error
     return actor
