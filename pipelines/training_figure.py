@@ -13,7 +13,8 @@ by the trainer; DVC stage ``train@<agent>-<seed>``) and writes:
   cost_return, cost_rate (and more) over the last 5% of training, ``per_seed`` (the same per seed),
   ``cost_rate_ci95``, ``cost_return_ci95`` and ``return_ci95`` (Student-t over seeds), the list
   ``seeds``, and the paper's claim (PPO-L-SI's final cost rate under half of PPO's, its return not
-  worse) evaluated on the means and per seed.
+  worse) evaluated on the means and per seed, and ``flat_from_frames``: per series, the first frame
+  after which the smoothed mean over seeds stays within 25% of its final value.
 """
 
 from __future__ import annotations
@@ -46,6 +47,22 @@ def running_mean(values: list[float], window: int) -> list[float]:
             buffer = buffer[-window:]
         out.append(sum(buffer) / len(buffer) if buffer else math.nan)
     return out
+
+
+FLAT_TOLERANCE = 0.25
+"""A smoothed mean-over-seeds curve is flat from the first frame after which it stays within this
+relative distance of its final value (the budget check of issue 9)."""
+
+
+def flat_from(frames: list[float], curve: list[float], tolerance: float = FLAT_TOLERANCE) -> float | None:
+    """The first frame after which ``curve`` stays within ``tolerance`` x |final| of its final value."""
+    final = curve[-1]
+    if not math.isfinite(final):
+        return None
+    start = len(curve) - 1
+    while start > 0 and math.isfinite(curve[start - 1]) and abs(curve[start - 1] - final) <= tolerance * abs(final):
+        start -= 1
+    return frames[start]
 
 
 def summarize_seeds(per_seed: dict[int, dict[str, float]]) -> dict:
@@ -104,6 +121,7 @@ def main() -> None:
     args.figure_dir.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     table = []
+    flat: dict[str, dict[str, float | None]] = {}
     for agent, seeds in runs.items():
         length = min(len(rows) for rows in seeds.values())
         frames = [r["frames"] for r in next(iter(seeds.values()))[:length]]
@@ -119,6 +137,7 @@ def main() -> None:
             mean = [sum(c[i] for c in curves) / len(curves) for i in range(length)]
             low = [min(c[i] for c in curves) for i in range(length)]
             high = [max(c[i] for c in curves) for i in range(length)]
+            flat.setdefault(agent, {})[name] = flat_from(frames, mean)
             line, = axis.plot(frames, mean, label=f"{AGENTS[agent]} (mean of {len(seeds)} seeds)")
             axis.fill_between(frames, low, high, color=line.get_color(), alpha=0.2, lw=0)
             axis.set_xlabel("environment steps")
@@ -139,6 +158,8 @@ def main() -> None:
     summary = {agent: summarize_seeds({seed: summarize_training(rows, args.last_fraction)
                                        for seed, rows in seeds.items()})
                for agent, seeds in runs.items()}
+    for agent, frames_by_series in flat.items():
+        summary[agent]["flat_from_frames"] = {**frames_by_series, "tolerance": FLAT_TOLERANCE}
     if {"ppo", "ppo_lsi"} <= summary.keys():
         summary["paper_claim"] = paper_claim(summary["ppo"], summary["ppo_lsi"])
     (args.training_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
