@@ -76,7 +76,9 @@ def hydra_main(cfg: DictConfig) -> None:
         summary = run(cfg, Path(HydraConfig.get().runtime.output_dir))
     except ConfigError as error:
         _fail(str(error))
-    print({k: v for k, v in summary.items() if not isinstance(v, dict)})
+    from srmpc.result_table import print_result
+
+    print_result(cfg, summary, Path(HydraConfig.get().runtime.output_dir))
 
 
 def _plain_overrides(args: list[str]) -> list[str] | None:

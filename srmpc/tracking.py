@@ -2,17 +2,51 @@
 
 The default store is SQLite (``mlflow.db``) with artifacts under ``mlruns/``, both relative to the
 working directory (the repository root in every documented command). ``make ui`` serves it.
+
+Experiments carry the tag ``mlflow.experimentKind=custom_model_development`` (set on creation and on
+every run start), which marks them as model training rather than GenAI. MLflow 3.17's UI itself picks
+its view by a switch of its own, so :func:`runs_table_url` names it. Runs are tagged ``stage``,
+``method``, ``traffic`` and ``seed``. When the environment variable ``SRMPC_PARENT_RUN_ID`` names a
+run of the same store and experiment, the run is nested under it: ``make reproduce`` starts one parent
+run per pipeline invocation (``pipelines/pipeline_run.py``) and every DVC stage's ``python -m srmpc``
+becomes its child; without the variable (or with an unknown id) a run stands alone.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
-from collections.abc import Iterator, Mapping
+import sys
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("MLFLOW_ENABLE_ASYNC_LOGGING", "false")
+
+PARENT_RUN_ENV = "SRMPC_PARENT_RUN_ID"
+"""Environment variable holding the id of the run that new runs nest under (see the module doc)."""
+RUNS_TABLE_VIEW = "paper"
+"""Share key of the runs-table view every experiment carries (see :func:`runs_table_url`)."""
+RUNS_TABLE_COLUMNS = [f"tags.`{tag}`" for tag in ("method", "traffic", "seed")] + [
+    f"metrics.`{metric}`" for metric in ("mean_event_cost", "cost_rate", "mean_return", "mean_n_steps", "mean_vx")]
+"""The view's columns: the run's tags, then J_c, rho_c, J_r, n_steps, v_x (MLflow shows no metric by default)."""
+EXPERIMENT_TAGS = {
+    "mlflow.experimentKind": "custom_model_development",
+    f"mlflow.sharedViewState.{RUNS_TABLE_VIEW}": json.dumps({
+        "name": "Paper metrics", "createdAt": 0, "updatedAt": 0,
+        "state": json.dumps({"selectedColumns": RUNS_TABLE_COLUMNS})}),
+}
+"""Marks an experiment as model development, and stores the runs-table view with the paper's metrics as
+a saved view (the UI's "Views" menu; MLflow 3.17's envelope)."""
+
+
+def runs_table_url(base: str, experiment_id: str) -> str:
+    """The MLflow UI's runs table of an experiment with the paper's metrics as columns. MLflow 3.17's UI
+    picks its GenAI or model-training view by a switch of its own (``workflowType``), not by the
+    experiment's kind, so the URL names it."""
+    return (f"{base.rstrip('/')}/#/experiments/{experiment_id}"
+            f"?viewStateShareKey={RUNS_TABLE_VIEW}&workflowType=machine_learning")
 
 
 def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
@@ -25,6 +59,84 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
         else:
             flat[name] = str(value)
     return flat
+
+
+def run_tags(params: Mapping[str, Any]) -> dict[str, str]:
+    """``stage``, ``method``, ``traffic`` and ``seed`` of a run, from its composed config, for filtering
+    and grouping in the UI. method: the agent (training) or the controller, SRMPC with its variant
+    unless that is the paper's (``srmpc_best_of_two``)."""
+    def plain(value: Any) -> Any:
+        return getattr(value, "value", value)  # an Enum of the structured config -> its value
+
+    stage = plain(params.get("stage"))
+    scenario, agent = params.get("scenario") or {}, params.get("agent") or {}
+    evaluation, srmpc = params.get("evaluation") or {}, params.get("srmpc") or {}
+    if stage == "train":
+        method, seed = plain(agent.get("name")), agent.get("seed")
+    else:
+        method, seed = plain(evaluation.get("controller")), evaluation.get("seed")
+        variant = plain(srmpc.get("variant"))
+        if method == "srmpc" and variant not in (None, "paper"):
+            method = f"srmpc_{variant}"
+    tags = {"stage": stage, "method": method, "traffic": plain(scenario.get("traffic")), "seed": seed}
+    return {key: str(value) for key, value in tags.items() if value not in (None, "")}
+
+
+def ensure_experiment(client: Any, name: str, artifact_location: str) -> str:
+    """The id of experiment ``name``, created with :data:`EXPERIMENT_TAGS` if missing; an existing one
+    gets the tags it lacks."""
+    experiment = client.get_experiment_by_name(name)
+    if experiment is None:
+        return client.create_experiment(name, artifact_location=Path(artifact_location).resolve().as_uri(),
+                                        tags=EXPERIMENT_TAGS)
+    for key, value in EXPERIMENT_TAGS.items():
+        if experiment.tags.get(key) != value:
+            client.set_experiment_tag(experiment.experiment_id, key, value)
+    return experiment.experiment_id
+
+
+def parent_run_id(client: Any, experiment_id: str) -> str | None:
+    """The run named by ``$SRMPC_PARENT_RUN_ID`` if it exists, is not deleted and belongs to
+    ``experiment_id``; otherwise None, with a warning when the variable was set."""
+    run_id = os.environ.get(PARENT_RUN_ENV, "").strip()
+    if not run_id:
+        return None
+    try:
+        parent = client.get_run(run_id)
+    except Exception:  # noqa: BLE001  (MlflowException or a malformed id): run standalone
+        parent = None
+    if parent is None or parent.info.lifecycle_stage == "deleted" or parent.info.experiment_id != experiment_id:
+        print(f"srmpc: {PARENT_RUN_ENV}={run_id} is not a run of this experiment; the run stands alone",
+              file=sys.stderr)
+        return None
+    return run_id
+
+
+def start_parent_run(uri: str, experiment_name: str, artifact_location: str, run_name: str,
+                     tags: Mapping[str, str] | None = None) -> str:
+    """Create a RUNNING run for child processes to nest under (pass its id in ``$SRMPC_PARENT_RUN_ID``);
+    returns its id. Creating the experiment here, once, also spares the children a race on a new store."""
+    import mlflow
+    from mlflow.utils.mlflow_tags import MLFLOW_RUN_NAME
+
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    experiment_id = ensure_experiment(client, experiment_name, artifact_location)
+    run = client.create_run(experiment_id, run_name=run_name, tags={MLFLOW_RUN_NAME: run_name, **(tags or {})})
+    return run.info.run_id
+
+
+def finish_parent_run(uri: str, run_id: str, artifacts: Iterable[tuple[str, Path]], succeeded: bool) -> None:
+    """Log each existing file or folder of ``artifacts`` ((artifact folder, local path) pairs) to the parent
+    run, then end it FINISHED or FAILED."""
+    import mlflow
+
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    for folder, path in artifacts:
+        if path.is_dir():
+            client.log_artifacts(run_id, str(path), folder or None)
+        elif path.is_file():
+            client.log_artifact(run_id, str(path), folder or None)
+    client.set_terminated(run_id, "FINISHED" if succeeded else "FAILED")
 
 
 class Run:
@@ -70,11 +182,11 @@ def tracked_run(
     import mlflow
 
     mlflow.set_tracking_uri(uri)
-    experiment = mlflow.get_experiment_by_name(experiment_name)
-    if experiment is None:
-        mlflow.create_experiment(experiment_name, artifact_location=Path(artifact_location).resolve().as_uri())
-    mlflow.set_experiment(experiment_name)
-    with mlflow.start_run(run_name=run_name):
+    client = mlflow.MlflowClient()
+    experiment_id = ensure_experiment(client, experiment_name, artifact_location)
+    mlflow.set_experiment(experiment_id=experiment_id)
+    parent = parent_run_id(client, experiment_id)
+    with mlflow.start_run(run_name=run_name, parent_run_id=parent, tags=run_tags(params)):
         mlflow.log_params(flatten(params))
         mlflow.log_text(config_yaml, "config.yaml")
         yield Run(mlflow)

@@ -1,0 +1,65 @@
+"""The MLflow parent run of one pipeline invocation (``make reproduce``).
+
+    python pipelines/pipeline_run.py start [--name NAME]        # prints the new run's id
+    python pipelines/pipeline_run.py finish RUN_ID [--status N]  # logs results, ends the run
+    python pipelines/pipeline_run.py url [--base http://127.0.0.1:5000]   # the UI's runs table
+
+``make reproduce`` starts the parent, runs ``dvc repro`` with ``SRMPC_PARENT_RUN_ID`` set to its id (every
+``python -m srmpc`` of a stage becomes a child run, tagged method, traffic and seed: srmpc/tracking.py)
+and finishes it with ``dvc repro``'s exit status: 0 ends it FINISHED, anything else FAILED. ``finish``
+logs as the parent's artifacts what exists of the paper's table (``table/``), the figures
+(``figures/``), the episode videos (``videos/``) and the training summary (``training/``).
+The tracking store and experiment are the ones ``python -m srmpc`` uses (``conf/tracking``), with
+``tracking.*`` overrides passed after ``--``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from srmpc.config.compose import compose_config, to_objects  # noqa: E402
+from srmpc.tracking import ensure_experiment, finish_parent_run, runs_table_url, start_parent_run  # noqa: E402
+
+ARTIFACTS = (  # (artifact folder of the parent run, local file or folder)
+    ("table", ROOT / "results" / "table.md"),
+    ("table", ROOT / "results" / "table.json"),
+    ("table", ROOT / "results" / "ablation.md"),
+    ("figures", ROOT / "results" / "figures"),
+    ("videos", ROOT / "results" / "videos"),
+    ("training", ROOT / "results" / "training" / "summary.json"),
+)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    start = commands.add_parser("start", help="create the parent run and print its id")
+    start.add_argument("--name", default="pipeline", help="run name")
+    finish = commands.add_parser("finish", help="log the results as artifacts and end the run")
+    finish.add_argument("run_id")
+    finish.add_argument("--status", type=int, default=0, help="exit status of what ran under the parent")
+    url = commands.add_parser("url", help="print the UI's runs table of the experiment, with the paper's metrics")
+    url.add_argument("--base", default="http://127.0.0.1:5000", help="where the UI is served")
+    args, overrides = parser.parse_known_args()
+    overrides = [o for o in overrides if o != "--"]
+    tracking = to_objects(compose_config([f"tracking.{o.removeprefix('tracking.')}" for o in overrides])).tracking
+    if args.command == "start":
+        print(start_parent_run(tracking.uri, tracking.experiment_name, tracking.artifact_location, args.name,
+                               {"stage": "pipeline"}))
+    elif args.command == "finish":
+        finish_parent_run(tracking.uri, args.run_id, ARTIFACTS, succeeded=args.status == 0)
+    else:
+        import mlflow
+
+        client = mlflow.MlflowClient(tracking_uri=tracking.uri)
+        print(runs_table_url(args.base, ensure_experiment(client, tracking.experiment_name,
+                                                          tracking.artifact_location)))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""MLflow as researchers use it: experiments open on the runs table, pipeline runs group their children."""
+
+import json
+
+import mlflow
+import pytest
+
+from srmpc.tracking import (
+    EXPERIMENT_TAGS,
+    PARENT_RUN_ENV,
+    finish_parent_run,
+    run_tags,
+    runs_table_url,
+    start_parent_run,
+    tracked_run,
+)
+
+KIND = "mlflow.experimentKind"
+
+
+@pytest.fixture
+def store(tmp_path, monkeypatch):
+    """A temporary SQLite store; no parent run inherited from the environment."""
+    monkeypatch.delenv(PARENT_RUN_ENV, raising=False)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    yield uri, str(tmp_path / "mlruns")
+    mlflow.set_tracking_uri(None)
+
+
+def _params(controller="srmpc", traffic="light", seed=3, variant="paper", stage="evaluate"):
+    return {"stage": stage, "scenario": {"traffic": traffic}, "agent": {"name": "ppo_lsi", "seed": 1},
+            "evaluation": {"controller": controller, "seed": seed}, "srmpc": {"variant": variant}}
+
+
+def test_run_tags_name_method_traffic_and_seed():
+    assert run_tags(_params()) == {"stage": "evaluate", "method": "srmpc", "traffic": "light", "seed": "3"}
+    assert run_tags(_params(variant="best_of_two"))["method"] == "srmpc_best_of_two"
+    assert run_tags(_params(controller="ltv_mpc", variant="best_of_two"))["method"] == "ltv_mpc"
+    assert run_tags(_params(stage="train")) == {"stage": "train", "method": "ppo_lsi", "traffic": "light", "seed": "1"}
+
+
+def test_new_and_existing_experiments_open_on_the_runs_table(store):
+    uri, artifacts = store
+    client = mlflow.MlflowClient(uri)
+    with tracked_run(True, uri, artifacts, "fresh", "run", _params(), "a: 1\n"):
+        pass
+    assert client.get_experiment_by_name("fresh").tags[KIND] == EXPERIMENT_TAGS[KIND]
+
+    client.create_experiment("old", artifact_location=f"file://{artifacts}")  # made before the tag existed
+    assert KIND not in client.get_experiment_by_name("old").tags
+    with tracked_run(True, uri, artifacts, "old", "run", _params(), "a: 1\n"):
+        pass
+    assert client.get_experiment_by_name("old").tags[KIND] == "custom_model_development"
+
+    view = json.loads(client.get_experiment_by_name("old").tags["mlflow.sharedViewState.paper"])
+    assert view["name"] == "Paper metrics"
+    assert "metrics.`mean_event_cost`" in json.loads(view["state"])["selectedColumns"]
+    assert runs_table_url("http://h:5000/", "7") == (
+        "http://h:5000/#/experiments/7?viewStateShareKey=paper&workflowType=machine_learning")
+
+
+def test_runs_nest_under_the_parent_named_in_the_environment(store, monkeypatch, tmp_path):
+    uri, artifacts = store
+    parent = start_parent_run(uri, "srmpc", artifacts, "pipeline", {"stage": "pipeline"})
+    monkeypatch.setenv(PARENT_RUN_ENV, parent)
+    for controller in ("srmpc", "ltv_mpc"):
+        with tracked_run(True, uri, artifacts, "srmpc", f"evaluate-{controller}", _params(controller), "a: 1\n") as run:
+            run.log_metrics({"mean_event_cost": 0.1})
+    table = tmp_path / "table.md"
+    table.write_text("| table |\n")
+    (tmp_path / "videos").mkdir()
+    (tmp_path / "videos" / "srmpc_light.mp4").write_bytes(b"\0")
+    finish_parent_run(uri, parent, [("table", table), ("videos", tmp_path / "videos"),
+                                    ("figures", tmp_path / "missing")], succeeded=True)
+
+    client = mlflow.MlflowClient(uri)
+    experiment = client.get_experiment_by_name("srmpc")
+    children = client.search_runs([experiment.experiment_id], f"tags.mlflow.parentRunId = '{parent}'")
+    assert sorted(r.data.tags["method"] for r in children) == ["ltv_mpc", "srmpc"]
+    assert all(r.data.tags["traffic"] == "light" and r.data.tags["seed"] == "3" for r in children)
+    assert client.get_run(parent).info.status == "FINISHED"
+    logged = {a.path for a in client.list_artifacts(parent)} | {a.path for a in client.list_artifacts(parent, "videos")}
+    assert {"table", "videos", "videos/srmpc_light.mp4"} <= logged
+
+
+def test_an_unknown_parent_leaves_the_run_standalone(store, monkeypatch, capsys):
+    uri, artifacts = store
+    monkeypatch.setenv(PARENT_RUN_ENV, "0123456789abcdef0123456789abcdef")
+    with tracked_run(True, uri, artifacts, "srmpc", "alone", _params(), "a: 1\n") as run:
+        run_id = run.run_id
+    assert "stands alone" in capsys.readouterr().err
+    assert "mlflow.parentRunId" not in mlflow.MlflowClient(uri).get_run(run_id).data.tags
