@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export PATH := $(abspath $(BIN)):$(PATH)
 
-.PHONY: install reproduce test test-slow lint ui bench clean
+.PHONY: install reproduce videos test test-slow lint ui bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -15,9 +15,24 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-## The main job: regenerate every result (DVC pipeline: spawn statistics, training, evaluation, table).
+## The main job: regenerate every result (DVC pipeline: spawn statistics, training, evaluation, table,
+## figures, videos), then the smoke experiment; always ends by printing results/table.md.
+## Committed results make `dvc repro` a no-op; `make reproduce FORCE=1` runs `dvc repro --force` (every stage).
+## Every stage's MLflow run is a child of one parent run (pipelines/pipeline_run.py), which gets the table,
+## figures and videos as artifacts.
+FORCE ?=
 reproduce: install
-	dvc repro
+	@parent=$$(python pipelines/pipeline_run.py start --name "make reproduce$(if $(FORCE), FORCE=1)") \
+	  && echo "MLflow parent run $$parent (make ui)" || parent=""; \
+	SRMPC_PARENT_RUN_ID=$$parent dvc repro $(if $(FORCE),--force); status=$$?; \
+	[ -z "$$parent" ] || python pipelines/pipeline_run.py finish $$parent --status $$status; \
+	if [ $$status -eq 0 ]; then python -m srmpc +experiment=smoke || status=$$?; fi; \
+	echo; echo "== results/table.md =="; cat results/table.md; \
+	exit $$status
+
+## The episode videos alone (results/videos/, DVC stage `videos`).
+videos: install
+	dvc repro --single-item videos
 
 ## The default test suite (slow tests excluded).
 test: install
@@ -30,8 +45,11 @@ test-slow: install
 lint: install
 	ruff check srmpc tests pipelines benchmarks
 
-## MLflow UI on http://127.0.0.1:5000 over the local SQLite store.
+## MLflow UI on http://127.0.0.1:5000 over the local SQLite store. MLflow 3.17 opens experiments in its
+## GenAI view unless the UI is in "Model training" mode (switch at the top left): the printed URL opens
+## the runs table (metric columns: Columns -> Metrics).
 ui: install
+	@echo "Runs table: $$(python pipelines/pipeline_run.py url 2>/dev/null)"
 	mlflow ui --backend-store-uri sqlite:///mlflow.db --default-artifact-root ./mlruns --host 127.0.0.1 --port 5000
 
 clean:
