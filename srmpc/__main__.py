@@ -50,6 +50,10 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
         if controller == "srmpc":
             controller = f"srmpc-{config.srmpc.variant}"
         run_name = f"{config.stage.value}-{controller}-{config.scenario.traffic}"
+    from srmpc.sweep import in_multirun, prepare_tracking_store
+
+    if in_multirun():  # a sweep's jobs start together: the first creates the MLflow store, under a lock
+        prepare_tracking_store(tracking)
     with tracked_run(
         tracking.enabled, tracking.uri, tracking.artifact_location, tracking.experiment_name, run_name,
         OmegaConf.to_container(cfg, resolve=True), config_yaml,
@@ -95,6 +99,13 @@ def main() -> None:
             compose_config(overrides)
         except ConfigError as error:
             _fail(str(error))
+    from srmpc.sweep import sweep_jobs
+
+    for number, job in enumerate(sweep_jobs(sys.argv[1:])):  # -m: every job's config, before any job starts
+        try:
+            compose_config(job)
+        except ConfigError as error:
+            _fail(f"sweep job #{number} ({' '.join(job)}): {error}")
     hydra_main()
 
 

@@ -154,6 +154,9 @@ class EvaluationConfig:
     output_dir: str | None = None
     """Where episodes.csv and summary.json go; null means Hydra's run directory. Rerunning into a
     directory that holds a partial run of the same config resumes it."""
+    workers: int = 0
+    """Processes that run the episodes (episode i still from seed + i, so the episodes do not depend on
+    it): 0 means one per CPU core this process may use, 1 runs them in this process."""
 
     def __post_init__(self) -> None:
         check_fields(self, episodes=at_least(1), seed=NON_NEGATIVE, policy_path=TEXT, output_dir=TEXT)

@@ -26,8 +26,13 @@ RESUMABLE_OVERRIDES = ("total_frames", "checkpoint_every", "output_dir", "num_th
 
 
 def training_dir(config: Config) -> Path:
-    return Path(config.agent.output_dir) if config.agent.output_dir else Path("results/training") / config.agent.name
+    """``agent.output_dir``; unset, ``results/training/<agent.name>``, or in a sweep (``-m``) the Hydra
+    job's own directory, so the jobs of a seed sweep neither share one nor touch ``results/``."""
+    from srmpc.sweep import in_multirun, job_output_dir
 
+    if config.agent.output_dir:
+        return Path(config.agent.output_dir)
+    return job_output_dir() if in_multirun() else Path("results/training") / config.agent.name
 
 def make_training_env(config: Config):
     """The batched TorchRL env of ``agent.task``."""
