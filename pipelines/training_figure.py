@@ -87,7 +87,8 @@ def paper_claim(ppo: dict, lsi: dict) -> dict:
         "return_difference_lsi_minus_ppo": lsi["return"] - ppo["return"],
         "holds": holds(ppo, lsi),
         "cost_rate_ci95_disjoint": None if None in (lsi["cost_rate_ci95"], ppo["cost_rate_ci95"]) else
-        bool(lsi["cost_rate_ci95"][1] < ppo["cost_rate_ci95"][0] or ppo["cost_rate_ci95"][1] < lsi["cost_rate_ci95"][0]),
+        bool(lsi["cost_rate_ci95"][1] < ppo["cost_rate_ci95"][0]
+             or ppo["cost_rate_ci95"][1] < lsi["cost_rate_ci95"][0]),
         "per_seed": {seed: {"cost_rate_ratio_lsi_over_ppo": lsi["per_seed"][seed]["cost_rate"]
                             / ppo["per_seed"][seed]["cost_rate"] if ppo["per_seed"][seed]["cost_rate"] > 0 else None,
                             "return_difference_lsi_minus_ppo": lsi["per_seed"][seed]["return"]

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 import torch
-from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 
 from srmpc.agents.hyperparameters import PPOHyperparameters, TrainTask

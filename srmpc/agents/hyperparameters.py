@@ -53,7 +53,8 @@ class PPOHyperparameters:
     gamma: float = 0.99
     """Reward discount gamma (horizon ~100 steps = 20 s at 5 Hz)."""
     cost_gamma: float = 0.9
-    """Cost discount gamma_c (0: v_c(s) = E[c(s, a)], the per-step SI condition of Ma et al.). Short (~10 steps = 2 s, the SI's look-ahead scale) so that v_c(s) measures
+    """Cost discount gamma_c (0: v_c(s) = E[c(s, a)], the per-step SI condition of Ma et al.). Short
+    (~10 steps = 2 s, the SI's look-ahead scale) so that v_c(s) measures
     the state-wise SI constraint near s rather than the -0.1 floor accumulated over 20 s."""
     gae_lambda: float = 0.95
     """GAE lambda of both advantages."""
@@ -125,7 +126,7 @@ class PPOHyperparameters:
     task: TrainTask = TrainTask.twin_highway
     """Environment to train on (``toy`` only for smoke runs)."""
     output_dir: str | None = None
-    """Checkpoints, policy.pt, metrics.csv, summary.json; null means results/training/<name>. Rerunning
+    """Checkpoints, policy.pt, metrics.csv, summary.json; null means results/training/<name>/seed_<seed>. Rerunning
     with a checkpoint there resumes it (the agent and scenario config must be the same)."""
 
     def __post_init__(self) -> None:

@@ -276,7 +276,7 @@ class Trainer:
                 group["lr"] = hp.multiplier_lr + progress * (hp.multiplier_lr_final - hp.multiplier_lr)
         sums: dict[str, float] = {}
         count = 0
-        for epoch in range(hp.epochs):
+        for _ in range(hp.epochs):
             order = torch.randperm(flat.shape[0], generator=self.shuffle)
             for start in range(0, flat.shape[0], hp.minibatch_size):
                 terms = self.loss(flat[order[start:start + hp.minibatch_size]])

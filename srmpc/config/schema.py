@@ -134,6 +134,9 @@ class SimulatorName(Enum):
     """The batched numba twin (srmpc.sim), identical step for step to highway-env and ~3000x faster."""
     highway_env = "highway_env"
     """srmpc/Highway-v0 on highway-env itself (the reference; ~28 steps/s)."""
+    twin_highway_env_resets = "twin_highway_env_resets"
+    """The twin, each episode starting from highway-env's own reset for its seed, copied into the twin
+    (srmpc.sim.single_env.HighwayEnvStartTwinEnv): highway-env's start states at the twin's speed."""
 
 
 @dataclass
@@ -159,7 +162,8 @@ class EvaluationConfig:
     it): 0 means one per CPU core this process may use, 1 runs them in this process."""
 
     def __post_init__(self) -> None:
-        check_fields(self, episodes=at_least(1), seed=NON_NEGATIVE, policy_path=TEXT, output_dir=TEXT)
+        check_fields(self, episodes=at_least(1), seed=NON_NEGATIVE, policy_path=TEXT, output_dir=TEXT,
+                     workers=NON_NEGATIVE)  # 0: one per core
 
 
 @dataclass

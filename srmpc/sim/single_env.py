@@ -72,3 +72,37 @@ class TwinScenarioEnv(gymnasium.Env):
         }
         return (result.observation[0], float(result.reward[0]), bool(result.terminated[0]),
                 bool(result.truncated[0]), info)
+
+
+class HighwayEnvStartTwinEnv(TwinScenarioEnv):
+    """:class:`TwinScenarioEnv` whose episodes start from highway-env's own reset for the same seed.
+
+    ``reset(seed=s)`` resets a ``srmpc/Highway-v0`` env (highway-env) with seed ``s`` and copies its
+    scene exactly into the twin (:func:`srmpc.sim.highway_copy.state_from_highway_envs`); every step
+    after that is the twin's, which equals highway-env's step for step. So an evaluation here draws its
+    start states from highway-env's distribution at the twin's speed: the cross-check of the twin's
+    own resets (DVC stage ``crosscheck_resets``).
+    """
+
+    def __init__(self, params: ScenarioParameters | None = None) -> None:
+        super().__init__(params)
+        from srmpc.scenario.highway import SrmpcHighwayEnv
+
+        self._highway_env = SrmpcHighwayEnv(params=self.params)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        gymnasium.Env.reset(self, seed=seed)
+        from srmpc.sim.highway_copy import state_from_highway_envs
+
+        self._highway_env.reset(seed=seed)
+        state = state_from_highway_envs([self._highway_env])
+        if state.vehicle_count != self.simulator.state.vehicle_count:
+            raise ValueError(f"highway-env spawned {state.vehicle_count} vehicles, the twin holds "
+                             f"{self.simulator.state.vehicle_count}")
+        state.rng[...] = self.simulator.state.rng  # the twin's stream (unused within an episode)
+        self.simulator.restore(state)
+        return self.simulator.observation[0], {"phi": float(self.simulator.state.phi[0])}
+
+    def close(self) -> None:
+        self._highway_env.close()
+        super().close()

@@ -42,7 +42,7 @@ from srmpc.scenario import road
 from srmpc.sim.constants import SimConstants
 from srmpc.sim.mlp import MlpPolicy
 from srmpc.sim.simulator import TwinSimulator
-from srmpc.sim.single_env import TwinScenarioEnv
+from srmpc.sim.single_env import HighwayEnvStartTwinEnv, TwinScenarioEnv
 from srmpc.sim.state import SceneState
 from srmpc.tracking import Run
 
@@ -146,6 +146,8 @@ def make_env(config: Config) -> gymnasium.Env:
     """The scenario on ``evaluation.simulator``."""
     if config.evaluation.simulator is SimulatorName.twin:
         return TwinScenarioEnv(config.scenario)
+    if config.evaluation.simulator is SimulatorName.twin_highway_env_resets:
+        return HighwayEnvStartTwinEnv(config.scenario)
     return gymnasium.make(SCENARIO_ID, params=config.scenario)
 
 
@@ -235,7 +237,11 @@ def prepare_output_dir(output_dir: Path, config_yaml: str) -> list[EpisodeRecord
 
     A directory whose ``config.yaml`` has another :func:`evaluation_identity` is refused (its episodes
     belong to another scenario, planner, controller, seed or policy)."""
-    output_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        output_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ConfigError(f"evaluation.output_dir={output_dir}: cannot write there ({error.strerror or error})"
+                          ) from error
     config_path = output_dir / "config.yaml"
     if config_path.exists() and evaluation_identity(config_path.read_text()) != evaluation_identity(config_yaml):
         raise ConfigError(
