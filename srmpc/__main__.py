@@ -8,8 +8,11 @@ Examples::
     python -m srmpc stage=train agent=ppo_lsi   # train PPO-L-SI (agent=ppo: the baseline)
 
 Config errors (wrong type, unknown key, invalid choice, invalid value) exit with status 2 and one
-line naming the key and the value. SIGTERM ends the run cleanly: the MLflow run is marked FAILED
-and finished episodes (evaluation) or the last completed iteration (training) stay on disk for a resume.
+line naming the key and the value (an output directory that cannot be created included); any other
+file that cannot be read or written (a corrupted policy.pt) exits with status 1 and one line naming
+the path. SIGTERM ends the run cleanly: the MLflow run is marked FAILED and finished episodes
+(evaluation) or the last completed iteration (training) stay on disk for a resume; after a SIGKILL the
+next start of a run of the same name marks the dead process's run FAILED (srmpc.tracking).
 """
 
 from __future__ import annotations
@@ -24,9 +27,11 @@ from omegaconf import DictConfig, OmegaConf
 
 from srmpc.config.compose import ConfigError, compose_config, to_objects
 from srmpc.config.schema import Config, Stage, register_schema
+from srmpc.errors import FileFault, describe_file_fault
 from srmpc.tracking import tracked_run
 
 EXIT_CONFIG_ERROR = 2
+EXIT_RUN_ERROR = 1
 
 
 def _fail(message: str) -> None:
@@ -80,6 +85,9 @@ def hydra_main(cfg: DictConfig) -> None:
         summary = run(cfg, Path(HydraConfig.get().runtime.output_dir))
     except ConfigError as error:
         _fail(str(error))
+    except (FileFault, OSError) as error:  # an unreadable policy.pt, an unwritable output directory
+        print(f"srmpc: error: {describe_file_fault(error)}", file=sys.stderr)
+        sys.exit(EXIT_RUN_ERROR)
     from srmpc.result_table import print_result
 
     print_result(cfg, summary, Path(HydraConfig.get().runtime.output_dir))

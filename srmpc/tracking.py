@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import socket
 import sys
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -164,6 +165,42 @@ class Run:
             self._mlflow.set_tags(dict(tags))
 
 
+PID_TAG, HOST_TAG = "srmpc.pid", "srmpc.host"
+"""Run tags naming the process that runs it, so a later start can tell a killed run from a live one."""
+
+
+def process_tags() -> dict[str, str]:
+    """:data:`PID_TAG` and :data:`HOST_TAG` of this process."""
+    return {PID_TAG: str(os.getpid()), HOST_TAG: socket.gethostname()}
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def fail_stale_runs(client: Any, experiment_id: str, run_name: str) -> list[str]:
+    """End FAILED every RUNNING run named ``run_name`` whose process, on this host, is gone; return their ids.
+
+    A SIGTERM ends a run FAILED from inside; a SIGKILL (or a power cut) leaves it RUNNING for ever, so the
+    next start of a run of the same name cleans up. A recycled pid keeps a dead run RUNNING (never the reverse).
+    """
+    host, stale = socket.gethostname(), []
+    for run in client.search_runs([experiment_id], filter_string="attributes.status = 'RUNNING'", max_results=1000):
+        tags = run.data.tags
+        if run.info.run_name != run_name or tags.get(HOST_TAG) != host or not tags.get(PID_TAG, "").isdigit():
+            continue
+        if not _process_alive(int(tags[PID_TAG])):
+            client.set_terminated(run.info.run_id, "FAILED")
+            stale.append(run.info.run_id)
+    return stale
+
+
 @contextlib.contextmanager
 def tracked_run(
     enabled: bool,
@@ -175,7 +212,8 @@ def tracked_run(
     config_yaml: str,
 ) -> Iterator[Run]:
     """Start a run, log ``params`` (flattened) and ``config_yaml`` as ``config.yaml``; end it FINISHED,
-    or FAILED if the block raises (SystemExit from the SIGTERM handler included)."""
+    or FAILED if the block raises (SystemExit from the SIGTERM handler included). Runs of the same name
+    left RUNNING by a killed process are first ended FAILED (:func:`fail_stale_runs`)."""
     if not enabled:
         yield Run(None)
         return
@@ -186,7 +224,8 @@ def tracked_run(
     experiment_id = ensure_experiment(client, experiment_name, artifact_location)
     mlflow.set_experiment(experiment_id=experiment_id)
     parent = parent_run_id(client, experiment_id)
-    with mlflow.start_run(run_name=run_name, parent_run_id=parent, tags=run_tags(params)):
+    fail_stale_runs(client, experiment_id, run_name)
+    with mlflow.start_run(run_name=run_name, parent_run_id=parent, tags={**run_tags(params), **process_tags()}):
         mlflow.log_params(flatten(params))
         mlflow.log_text(config_yaml, "config.yaml")
         yield Run(mlflow)
