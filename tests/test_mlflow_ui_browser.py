@@ -1,0 +1,177 @@
+"""In a real browser, the MLflow UI lists an SRMPC and an LTV-MPC run with their J_c (headless Chromium).
+
+Chromium is driven over its DevTools protocol (a websocket, through aiohttp, which DVC brings): open the
+runs table, choose the metric columns (MLflow 3.17 shows none by default), reload, screenshot, read the DOM.
+Needs Chromium from Debian's packages (``apt-get install chromium``); skipped, saying so, without it.
+The screenshot goes to ``$SRMPC_UI_SCREENSHOT`` if set, else into the test's temporary directory.
+"""
+
+import asyncio
+import base64
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from srmpc.tracking import PARENT_RUN_ENV, RUNS_TABLE_COLUMNS, runs_table_url, tracked_run
+
+pytestmark = pytest.mark.slow
+
+CHROMIUM = next((shutil.which(name) for name in ("chromium", "chromium-browser", "google-chrome")
+                 if shutil.which(name)), None)
+RUNS = {"evaluate-srmpc-paper-light": ("srmpc", 0.002), "evaluate-ltv_mpc-light": ("ltv_mpc", 0.041)}
+J_C = "mean_event_cost"
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def mlflow_ui(tmp_path, monkeypatch):
+    """``mlflow server`` on a free port over a temporary SQLite store holding the two runs; yields the
+    runs-table URL (MLflow 3.17 opens experiments in its GenAI view unless told ``workflowType``)."""
+    monkeypatch.delenv(PARENT_RUN_ENV, raising=False)
+    uri, artifacts = f"sqlite:///{tmp_path / 'mlflow.db'}", str(tmp_path / "mlruns")
+    for name, (controller, j_c) in RUNS.items():
+        params = {"stage": "evaluate", "scenario": {"traffic": "light"},
+                  "evaluation": {"controller": controller, "seed": 0}, "srmpc": {"variant": "paper"}}
+        with tracked_run(True, uri, artifacts, "srmpc", name, params, "stage: evaluate\n") as run:
+            run.log_metrics({J_C: j_c, "mean_vx": 21.5})
+    import mlflow
+
+    experiment_id = mlflow.MlflowClient(uri).get_experiment_by_name("srmpc").experiment_id
+    mlflow.set_tracking_uri(None)
+    port = _free_port()
+    log = (tmp_path / "server.log").open("w")
+    server = subprocess.Popen(
+        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--default-artifact-root", artifacts,
+         "--host", "127.0.0.1", "--port", str(port), "--workers", "1"],
+        stdout=log, stderr=subprocess.STDOUT, start_new_session=True)  # its own group: stopped with its workers
+    try:
+        deadline = time.monotonic() + 900  # ~20 s on an idle machine; minutes on a loaded one
+        while True:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=5) as response:
+                    if response.status == 200:
+                        break
+            except OSError:
+                pass
+            if server.poll() is not None or time.monotonic() > deadline:
+                pytest.fail(f"mlflow server did not answer: {(tmp_path / 'server.log').read_text()[-2000:]}")
+            time.sleep(2)
+        yield runs_table_url(f"http://127.0.0.1:{port}", experiment_id)
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        try:
+            server.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+        log.close()
+
+
+SELECT_COLUMNS_JS = """(() => {
+  // The runs table keeps its state (selectedColumns among it) as JSON in localStorage; MLflow 3.17 shows
+  // no metric column until one is chosen, so choose the paper's view here, as Columns -> Metrics would.
+  let changed = 0;
+  for (let i = 0; i < localStorage.length; i++) {
+    const key = localStorage.key(i);
+    let state;
+    try { state = JSON.parse(localStorage.getItem(key)); } catch (e) { continue; }
+    if (state && Array.isArray(state.selectedColumns)) {
+      state.selectedColumns = COLUMNS;
+      localStorage.setItem(key, JSON.stringify(state));
+      changed++;
+    }
+  }
+  return changed;
+})()"""
+
+
+async def _browse(url: str, profile: Path, screenshot: Path, deadline_s: float) -> str:
+    """Open ``url`` in headless Chromium over the DevTools protocol, select the paper's columns, reload,
+    save a screenshot; returns the page's DOM."""
+    import aiohttp
+
+    chromium = subprocess.Popen(
+        [CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+         f"--user-data-dir={profile}", "--window-size=1800,700", "--remote-debugging-port=0", "about:blank"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + deadline_s
+    try:
+        port_file = profile / "DevToolsActivePort"
+        while not port_file.exists() or not port_file.read_text().strip():
+            assert time.monotonic() < deadline and chromium.poll() is None, "Chromium did not start"
+            time.sleep(1)
+        port = int(port_file.read_text().split()[0])
+        async with aiohttp.ClientSession() as session:
+            async with session.get(f"http://127.0.0.1:{port}/json") as response:
+                page = next(t for t in await response.json() if t["type"] == "page")
+            async with session.ws_connect(page["webSocketDebuggerUrl"], max_msg_size=0) as socket_:
+                ids = iter(range(1, 10**6))
+
+                async def call(method: str, **params):
+                    number = next(ids)
+                    await socket_.send_json({"id": number, "method": method, "params": params})
+                    async for message in socket_:
+                        data = message.json()
+                        if data.get("id") == number:
+                            return data.get("result", {})
+                    raise AssertionError("DevTools connection closed")
+
+                async def evaluate(expression: str):
+                    result = await call("Runtime.evaluate", expression=expression, returnByValue=True)
+                    return result.get("result", {}).get("value")
+
+                async def wait_for(expression: str, what: str) -> None:
+                    while not await evaluate(expression):
+                        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+                        await asyncio.sleep(2)
+
+                names = " && ".join(f"document.body.innerText.includes({json.dumps(n)})" for n in RUNS)
+                await call("Page.navigate", url=url)
+                await wait_for(f"document.body && {names}", "the runs table")
+                columns = json.dumps([c for c in RUNS_TABLE_COLUMNS if c.startswith("metrics.")])
+                assert await evaluate(SELECT_COLUMNS_JS.replace("COLUMNS", columns)) >= 1, "no runs-table state"
+                await call("Page.reload")
+                await wait_for(f"document.body && {names} && document.body.innerText.includes({json.dumps(J_C)})",
+                               "the J_c column")
+                await asyncio.sleep(3)  # let the grid settle
+                shot = await call("Page.captureScreenshot", format="png")
+                screenshot.write_bytes(base64.b64decode(shot["data"]))
+                return await evaluate("document.documentElement.outerHTML")
+    finally:
+        os.killpg(chromium.pid, signal.SIGKILL)
+        chromium.wait(timeout=30)
+
+
+@pytest.mark.timeout(2400)
+def test_runs_table_shows_srmpc_and_ltv_mpc_with_their_j_c(mlflow_ui, tmp_path):
+    if CHROMIUM is None:
+        pytest.skip("Chromium is not installed; install it from Debian's packages: apt-get install chromium")
+    screenshot = Path(os.environ.get("SRMPC_UI_SCREENSHOT", tmp_path / "mlflow_runs_table.png"))
+    screenshot.parent.mkdir(parents=True, exist_ok=True)
+    dom = asyncio.run(_browse(mlflow_ui, tmp_path / "chromium", screenshot, deadline_s=900))
+    assert screenshot.stat().st_size > 20_000, "screenshot missing or blank"
+
+    assert "Model training" in dom and ">Runs<" in dom  # the runs table, not the GenAI traces overview
+    for name in RUNS:
+        assert name in dom, f"run {name} not in the runs table"
+    assert f'col-id="metrics.`{J_C}`"' in dom, "no J_c (mean_event_cost) metric column"
+    # each run's row (ag-grid: row-index shared by the pinned name cell and the metric cells) holds its J_c
+    for name, (_, j_c) in RUNS.items():
+        row = re.search(rf'row-index="(\d+)"(?:(?!row-index=).)*?{re.escape(name)}', dom, re.S)
+        assert row, f"no row for {name}"
+        cells = re.findall(rf'row-index="{row.group(1)}"(?:(?!row-index=).)*', dom, re.S)
+        assert any(f">{j_c}<" in cell for cell in cells), f"J_c {j_c} of {name} not shown in its row"
