@@ -125,8 +125,8 @@ def print_result(cfg: Any, summary: Mapping[str, Any], hydra_output_dir: Path, c
     """Print the run's result table (``cfg``: the composed DictConfig of ``python -m srmpc``)."""
     training = getattr(cfg.stage, "value", cfg.stage) == "train"
     if training:
-        default = Path("results/training") / cfg.agent.name / f"seed_{cfg.agent.seed}"
-        output_dir = Path(cfg.agent.output_dir) if cfg.agent.output_dir else default
+        output_dir = (Path(cfg.agent.output_dir) if cfg.agent.output_dir
+                      else Path("results/training") / cfg.agent.name / f"seed_{cfg.agent.seed}")
     else:
         output_dir = Path(cfg.evaluation.output_dir) if cfg.evaluation.output_dir else hydra_output_dir
     run_id = last_run_id() if cfg.tracking.enabled else None
