@@ -30,10 +30,8 @@ class CheckpointError(FileFault):
 def _load(path: Path, what: str) -> dict[str, Any]:
     try:
         saved = torch.load(path, weights_only=False)
-    except OSError:
-        raise
-    except Exception as error:  # noqa: BLE001  (torch raises RuntimeError, UnpicklingError, EOFError, ...)
-        reason = (str(error).splitlines() or [type(error).__name__])[0]
+    except Exception as error:  # noqa: BLE001  (RuntimeError, UnpicklingError, EOFError, OSError EINVAL, ...)
+        reason = getattr(error, "strerror", None) or (str(error).splitlines() or [type(error).__name__])[0]
         raise CheckpointError(f"{path}: not a readable {what} (truncated or corrupted? {reason})") from error
     if not isinstance(saved, dict):
         raise CheckpointError(f"{path}: not a {what} (holds a {type(saved).__name__})")
