@@ -85,9 +85,14 @@ def test_multiplier_takes_its_steps_and_its_learning_rate_decays_to_the_final_va
     assert header == "lambda,cost_value,event_ahead"
 
 
-def test_multiplier_steps_beyond_the_minibatches_of_an_iteration_are_refused():
+def test_multiplier_steps_are_capped_at_the_minibatches_of_an_iteration(tmp_path):
     with pytest.raises(ValueError, match="multiplier_steps"):
-        small(multiplier_steps=100)
+        small(multiplier_steps=0)
+    hp = small(multiplier_steps=100)  # 2 epochs x 4 minibatches
+    trainer = Trainer(ToyConstrainedEnv(hp.num_envs, seed=0), hp, tmp_path, progress=False)
+    trainer.train(max_iterations=1)
+    trainer.close()
+    assert {int(state["step"]) for state in trainer.optimizers["multiplier"].state.values()} == {8}
 
 
 def test_t_interval_over_seeds_matches_the_student_t_formula():

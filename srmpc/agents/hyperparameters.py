@@ -78,7 +78,7 @@ class PPOHyperparameters:
     dual ascent (FAC: dual ascent every 12 updates)."""
     multiplier_steps: int = 4
     """Adam steps of lambda(s) per multiplier update, one on each of the iteration's first minibatches
-    (4: the first epoch; Ma et al.: 5 per epoch). At most epochs x minibatches per epoch."""
+    (4: the first epoch; Ma et al.: 5 per epoch), capped at the iteration's epochs x minibatches."""
     multiplier_max_grad_norm: float | None = None
     """Gradient-norm clip of lambda(s) (Feasible Actor-Critic: 3). null: no clip."""
     violation_normalization: bool = False
@@ -149,9 +149,6 @@ class PPOHyperparameters:
                f"must be >= frames_per_batch={self.frames_per_batch}")
         _check(0.0 < self.initial_lambda < self.lambda_max, "initial_lambda", self.initial_lambda,
                "must lie in (0, lambda_max)")
-        steps_per_iteration = self.epochs * (self.frames_per_batch // self.minibatch_size)
-        _check(self.multiplier_steps <= steps_per_iteration, "multiplier_steps", self.multiplier_steps,
-               f"must lie in [1, epochs x minibatches per epoch = {steps_per_iteration}]")
 
     @property
     def iterations(self) -> int:

@@ -214,7 +214,12 @@ produce them."""
 def evaluation_identity(config_yaml: str) -> dict:
     """What an evaluation's episodes depend on: the config without :data:`NOT_IDENTITY`, plus
     ``policy_sha256`` where the controller runs a policy."""
-    identity = yaml.safe_load(config_yaml) or {}
+    try:
+        identity = yaml.safe_load(config_yaml) or {}
+    except yaml.YAMLError:
+        identity = None
+    if not isinstance(identity, dict):  # not a config mapping: the text itself is the identity
+        return {"text": config_yaml}
     for path in NOT_IDENTITY:
         node = identity
         for key in path[:-1]:
@@ -227,9 +232,9 @@ def evaluation_identity(config_yaml: str) -> dict:
 def identity_yaml(config: Config, config_yaml: str) -> str:
     """``config_yaml`` with the SHA-256 of the evaluated policy file appended (see evaluation_identity)."""
     policy = policy_file(config)
-    if policy is None or not policy[0].is_file():
+    if policy is None or not policy[0].is_file() or "text" in evaluation_identity(config_yaml):
         return config_yaml
-    return config_yaml + f"policy_sha256: {hashlib.sha256(policy[0].read_bytes()).hexdigest()}\n"
+    return config_yaml.rstrip("\n") + f"\npolicy_sha256: {hashlib.sha256(policy[0].read_bytes()).hexdigest()}\n"
 
 
 def prepare_output_dir(output_dir: Path, config_yaml: str) -> list[EpisodeRecord]:
