@@ -1,6 +1,7 @@
 """``stage=train``: train ``agent`` (PPO or PPO-L-SI) with checkpoints and resume, tracked in MLflow.
 
-Files in the output directory (``agent.output_dir``, default ``results/training/<agent.name>``):
+Files in the output directory (``agent.output_dir``, default
+``results/training/<agent.name>/seed_<agent.seed>``):
 ``config.yaml`` (agent + scenario config the run belongs to), ``last.pt`` (checkpoint), ``policy.pt``
 (the actor alone), ``metrics.csv`` (one row per iteration) and ``summary.json`` (the last 5% of
 training, written at the end).
@@ -37,13 +38,16 @@ RESULT_NAMES = (CHECKPOINT_NAME, POLICY_NAME, "metrics.csv", SUMMARY_NAME)  # me
 
 
 def training_dir(config: Config) -> Path:
-    """``agent.output_dir``; unset, ``results/training/<agent.name>``, or in a sweep (``-m``) the Hydra
-    job's own directory, so the jobs of a seed sweep neither share one nor touch ``results/``."""
+    """``agent.output_dir``; unset, ``results/training/<agent.name>/seed_<agent.seed>``, or in a sweep
+    (``-m``) the Hydra job's own directory, so the jobs of a seed sweep neither share one nor touch
+    ``results/``."""
     from srmpc.sweep import in_multirun, job_output_dir
 
     if config.agent.output_dir:
         return Path(config.agent.output_dir)
-    return job_output_dir() if in_multirun() else Path("results/training") / config.agent.name
+    if in_multirun():
+        return job_output_dir()
+    return Path("results/training") / config.agent.name / f"seed_{config.agent.seed}"
 
 def make_training_env(config: Config):
     """The batched TorchRL env of ``agent.task``."""
