@@ -388,16 +388,19 @@ class Trainer:
                    "train/violation_share", "train/lambda_cost_value_corr")
 
     def _truncate_csv(self, path: Path) -> None:
-        """Keep the rows up to the resumed iteration (a crash may have left later ones)."""
+        """Keep the rows up to the resumed iteration (a crash may have left later ones), replacing the
+        file atomically (temporary file + rename), so a crash here never leaves it empty."""
         rows = []
         if path.exists():
             with path.open(newline="") as handle:
                 rows = [r for r in csv.DictReader(handle) if r.get("iteration") and
                         float(r["iteration"]) <= self.iteration]
-        with path.open("w", newline="") as handle:
+        temporary = path.with_name(path.name + ".tmp")
+        with temporary.open("w", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=self.CSV_COLUMNS)
             writer.writeheader()
             writer.writerows(rows)
+        os.replace(temporary, path)
 
     def _append_csv(self, path: Path, metrics: dict[str, float]) -> None:
         with path.open("a", newline="") as handle:
