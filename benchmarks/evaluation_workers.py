@@ -1,15 +1,16 @@
 """Speedup of a sharded evaluation (``evaluation.workers``) over one process, on the same episodes.
 
-    python benchmarks/evaluation_workers.py [--episodes 40] [--workers 2] [hydra overrides]
+    python benchmarks/evaluation_workers.py [--episodes 200] [--workers 2] [hydra overrides]
 
-Composes ``conf/`` (default: LTV-MPC in light traffic on the twin, ``+experiment=light_traffic
-evaluation.controller=ltv_mpc``), runs one untimed episode in this process (numba's cache, imports),
-then the same ``--episodes`` episodes with ``evaluation.workers=1`` and with ``--workers`` worker
-processes, each into a temporary directory through ``run_evaluation`` (no MLflow), and checks that the
-two ``episodes.csv`` are identical. Writes ``results/benchmarks/evaluation_workers.json``:
-``sequential_s`` and ``sharded_s`` (wall time of the whole evaluation; the sharded one includes starting
-its workers), ``speedup`` = sequential_s / sharded_s, episodes per second of each, and the core count
-and load average, since other processes on the same cores make the ratio meaningless.
+Composes ``conf/`` (default: SRMPC in light traffic on the twin, ``+experiment=light_traffic
+evaluation.controller=srmpc``, the controller that takes most of the pipeline's evaluation time), runs
+one untimed episode in this process (numba's cache, imports), then the same ``--episodes`` episodes
+with ``evaluation.workers=1`` and with ``--workers`` worker processes, each into a temporary directory
+through ``run_evaluation`` (no MLflow), and checks that the two ``episodes.csv`` are identical. Writes
+``results/benchmarks/evaluation_workers.json``: ``sequential_s`` and ``sharded_s`` (wall time of the
+whole evaluation; the sharded one includes starting its workers, about 6 s here: importing torch and
+loading numba's cache), ``speedup`` = sequential_s / sharded_s, episodes per second of each, and the
+core count and load average, since other processes on the same cores make the ratio meaningless.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from srmpc.config.compose import compose_config, to_objects  # noqa: E402
 from srmpc.stages.evaluate import available_cores, run_evaluation  # noqa: E402
 from srmpc.tracking import Run  # noqa: E402
 
-DEFAULT_OVERRIDES = ["+experiment=light_traffic", "evaluation.controller=ltv_mpc"]
+DEFAULT_OVERRIDES = ["+experiment=light_traffic", "evaluation.controller=srmpc"]
 
 
 def _timed_evaluation(overrides: list[str], episodes: int, workers: int, directory: Path) -> float:
@@ -43,7 +44,7 @@ def _timed_evaluation(overrides: list[str], episodes: int, workers: int, directo
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=40, help="episodes per evaluation")
+    parser.add_argument("--episodes", type=int, default=200, help="episodes per evaluation")
     parser.add_argument("--workers", type=int, default=2, help="worker processes of the sharded evaluation")
     parser.add_argument("--output", type=Path, default=ROOT / "results/benchmarks/evaluation_workers.json")
     parser.add_argument("overrides", nargs="*", help=f"Hydra overrides (default: {' '.join(DEFAULT_OVERRIDES)})")

@@ -31,7 +31,7 @@ def main() -> None:
     args = parser.parse_args()
     source = args.training_dir / args.agent / f"seed_{args.seed}" / "policy.pt"
     if not source.is_file():
-        raise SystemExit(f"{source}: no trained policy (run the DVC stage train@{args.agent}-{args.seed})")
+        raise SystemExit(f"{source}: no trained policy (run the DVC stage train: dvc repro train)")
     target = args.training_dir / args.agent / "policy.pt"
     temporary = target.with_name(target.name + ".tmp")
     shutil.copyfile(source, temporary)

@@ -3,7 +3,7 @@
     python pipelines/training_figure.py [--training-dir results/training] [--seeds 0 1 2] [--window 0.05]
 
 Reads each agent's ``<training-dir>/<agent>/seed_<seed>/metrics.csv`` (one row per iteration, written
-by the trainer; DVC stage ``train@<agent>-<seed>``) and writes:
+by the trainer; DVC stage ``train``) and writes:
 - ``results/figures/training.png``: episodic return J_r (sum of r'), episodic cost return J_c
   (collisions + road exits) and cost rate rho_c against environment steps, each smoothed per seed by
   a running mean over ``window`` x (number of iterations) iterations, as in the paper's figure; the

@@ -57,8 +57,9 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
         run_name = f"{config.stage.value}-{controller}-{config.scenario.traffic}"
     from srmpc.sweep import in_multirun, prepare_tracking_store
 
-    if in_multirun():  # a sweep's jobs start together: the first creates the MLflow store, under a lock
-        prepare_tracking_store(tracking)
+    # A sweep's jobs, or trainings side by side (pipelines/train_runs.py), start together: the first
+    # creates the MLflow store (and, in a sweep, the experiment) under a lock; two creators would collide.
+    prepare_tracking_store(tracking, ensure_experiment=in_multirun())
     with tracked_run(
         tracking.enabled, tracking.uri, tracking.artifact_location, tracking.experiment_name, run_name,
         OmegaConf.to_container(cfg, resolve=True), config_yaml,

@@ -62,18 +62,23 @@ def job_output_dir() -> Path:
     return Path(HydraConfig.get().runtime.output_dir)
 
 
-def prepare_tracking_store(tracking: TrackingConfig) -> None:
+def prepare_tracking_store(tracking: TrackingConfig, ensure_experiment: bool = True) -> None:
     """Create ``tracking.uri``'s SQLite store and ``tracking.experiment_name`` once, under a lock that
-    every job of the sweep on this machine takes (no-op for other stores and when tracking is off)."""
+    every process that may start beside others on this machine takes: a sweep's jobs, and the trainings
+    that ``pipelines/train_runs.py`` runs side by side (no-op for other stores and when tracking is off).
+    Without ``ensure_experiment`` an existing store is left as it is (the lock only waits for its
+    creator to finish), which costs no MLflow client."""
     if not tracking.enabled or not tracking.uri.startswith(SQLITE_PREFIX):
         return
     database = Path(tracking.uri.removeprefix(SQLITE_PREFIX)).resolve()
     key = hashlib.sha256(str(database).encode()).hexdigest()[:16]
     lock_path = Path(tempfile.gettempdir()) / f"srmpc-mlflow-{key}.lock"
-    import mlflow
-
     with lock_path.open("w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
+        if database.exists() and not ensure_experiment:
+            return
+        import mlflow
+
         client = mlflow.MlflowClient(tracking_uri=tracking.uri)  # creates the store
         if client.get_experiment_by_name(tracking.experiment_name) is None:  # the run adds the experiment's tags
             client.create_experiment(tracking.experiment_name,

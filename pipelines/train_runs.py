@@ -1,0 +1,104 @@
+"""Several trainings side by side: one DVC stage that keeps every core busy.
+
+DVC runs its stages one after another, and a training uses one core (``agent.num_threads=1``,
+``agent.sim_threads=1``), so one stage per training would leave the other cores idle. This stage runs
+each training as its own ``python -m srmpc stage=train <overrides>`` process, ``--jobs`` at a time
+(default: one per available core), in the order given: put the longest first.
+
+Each process is exactly the run one would start by hand, single-threaded, so its results do not depend
+on how many run beside it. Its output is printed when it ends, prefixed with its output directory. When
+one fails, the others still finish (nothing they did is lost) and this script then exits non-zero, naming
+the failed runs. SIGTERM or Ctrl-C is passed on to the running trainings, which save their checkpoint;
+a rerun resumes each from ``last.pt`` (finished runs are skipped by the trainer itself).
+
+    python pipelines/train_runs.py --jobs 2 "agent=ppo agent.seed=0 agent.output_dir=..." "agent=..."
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+
+@dataclass
+class Finished:
+    overrides: str
+    returncode: int
+    wall_s: float
+    output: str
+
+
+def output_dir_of(overrides: str) -> str:
+    """The run's ``agent.output_dir`` override, the name it is reported under."""
+    for token in shlex.split(overrides):
+        if token.startswith("agent.output_dir="):
+            return token.split("=", 1)[1]
+    return overrides
+
+
+def available_cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def run_trainings(runs: list[str], jobs: int, python: str = sys.executable) -> list[Finished]:
+    """Run ``python -m srmpc stage=train <overrides>`` for each of ``runs``, ``jobs`` at a time."""
+    processes: set[subprocess.Popen] = set()
+    stopping = False
+
+    def forward(signum, frame) -> None:  # pass SIGTERM / Ctrl-C on: each training saves its checkpoint
+        nonlocal stopping
+        stopping = True
+        for process in list(processes):
+            process.send_signal(signal.SIGTERM)
+
+    previous = {s: signal.signal(s, forward) for s in (signal.SIGTERM, signal.SIGINT)}
+    environment = {**os.environ, "TQDM_DISABLE": "1"}  # no progress bars in a shared log
+
+    def one(overrides: str) -> Finished:
+        if stopping:
+            return Finished(overrides, 128 + signal.SIGTERM, 0.0, "not started: stopped\n")
+        started = time.perf_counter()
+        process = subprocess.Popen([python, "-m", "srmpc", "stage=train", *shlex.split(overrides)],
+                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=environment)
+        processes.add(process)
+        output, _ = process.communicate()
+        processes.discard(process)
+        finished = Finished(overrides, process.returncode, time.perf_counter() - started, output)
+        name = output_dir_of(overrides)
+        lines = "".join(f"[{name}] {line}\n" for line in output.rstrip("\n").splitlines())
+        print(f"{lines}[{name}] exit {finished.returncode} after {finished.wall_s:.0f} s", flush=True)
+        return finished
+
+    try:
+        with ThreadPoolExecutor(max(1, jobs)) as pool:
+            return list(pool.map(one, runs))
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", help="one training's overrides each, e.g. 'agent=ppo agent.seed=0'")
+    parser.add_argument("--jobs", type=int, default=0, help="trainings at once (0: one per available core)")
+    args = parser.parse_args()
+    if args.jobs < 0:
+        parser.error(f"--jobs={args.jobs}: must be >= 0 (0: one per available core)")
+    jobs = args.jobs or available_cores()
+    print(f"{len(args.runs)} trainings, {jobs} at a time", flush=True)
+    finished = run_trainings(args.runs, jobs)
+    failed = [f for f in finished if f.returncode != 0]
+    if failed:
+        names = ", ".join(f"{output_dir_of(f.overrides)} (exit {f.returncode})" for f in failed)
+        raise SystemExit(f"train_runs: {len(failed)} of {len(finished)} trainings failed: {names}")
+
+
+if __name__ == "__main__":
+    main()
