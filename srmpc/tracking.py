@@ -19,12 +19,17 @@ import json
 import os
 import socket
 import sys
+import time
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("MLFLOW_ENABLE_ASYNC_LOGGING", "false")
 
+MLFLOW_BATCH_LIMIT = 1000
+"""Most metric values that one MLflow ``log_batch`` call takes."""
+METRICS_FLUSH_S = 5.0
+"""How long :class:`Run` buffers metrics before writing them (the MLflow UI lags by at most this)."""
 PARENT_RUN_ENV = "SRMPC_PARENT_RUN_ID"
 """Environment variable holding the id of the run that new runs nest under (see the module doc)."""
 RUNS_TABLE_VIEW = "paper"
@@ -141,10 +146,22 @@ def finish_parent_run(uri: str, run_id: str, artifacts: Iterable[tuple[str, Path
 
 
 class Run:
-    """An active MLflow run, or a no-op when tracking is disabled."""
+    """An active MLflow run, or a no-op when tracking is disabled.
 
-    def __init__(self, mlflow_module: Any | None) -> None:
+    Metrics are buffered and written by one MLflow ``log_batch`` at most every ``flush_every_s`` seconds
+    (or per :data:`MLFLOW_BATCH_LIMIT` values): one ``mlflow.log_metrics`` call is one SQLite
+    transaction, 33 ms of wall time and 8.6 ms of CPU for 5 metrics (measured on the project's 2-core
+    machine), and an evaluation's parent process paid it once per episode, most of a 1000-episode
+    PPO-L-SI evaluation's 43 s. :meth:`flush` also runs before an artifact is logged and when the run
+    ends, finished or failed; a process killed outright loses at most ``flush_every_s`` of metrics
+    (``episodes.csv`` and ``metrics.csv`` have them all).
+    """
+
+    def __init__(self, mlflow_module: Any | None, flush_every_s: float = METRICS_FLUSH_S) -> None:
         self._mlflow = mlflow_module
+        self.flush_every_s = flush_every_s
+        self._pending: list[Any] = []
+        self._last_flush = time.monotonic()
 
     @property
     def run_id(self) -> str | None:
@@ -153,11 +170,29 @@ class Run:
         return self._mlflow.active_run().info.run_id
 
     def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None:
-        if self._mlflow is not None:
-            self._mlflow.log_metrics({k: float(v) for k, v in metrics.items()}, step=step)
+        if self._mlflow is None:
+            return
+        from mlflow.entities import Metric
+
+        timestamp = int(time.time() * 1000)
+        step = 0 if step is None else int(step)  # MLflow's own default step
+        self._pending.extend(Metric(key, float(value), timestamp, step) for key, value in metrics.items())
+        if len(self._pending) >= MLFLOW_BATCH_LIMIT or time.monotonic() - self._last_flush >= self.flush_every_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered metrics now."""
+        pending, self._pending = self._pending, []
+        self._last_flush = time.monotonic()
+        if self._mlflow is None or not pending:
+            return
+        client, run_id = self._mlflow.MlflowClient(), self.run_id
+        for start in range(0, len(pending), MLFLOW_BATCH_LIMIT):
+            client.log_batch(run_id, metrics=pending[start:start + MLFLOW_BATCH_LIMIT])
 
     def log_artifact(self, path: Path) -> None:
         if self._mlflow is not None:
+            self.flush()
             self._mlflow.log_artifact(str(path))
 
     def set_tags(self, tags: Mapping[str, str]) -> None:
@@ -228,4 +263,8 @@ def tracked_run(
     with mlflow.start_run(run_name=run_name, parent_run_id=parent, tags={**run_tags(params), **process_tags()}):
         mlflow.log_params(flatten(params))
         mlflow.log_text(config_yaml, "config.yaml")
-        yield Run(mlflow)
+        run = Run(mlflow)
+        try:
+            yield run
+        finally:
+            run.flush()  # the buffered metrics, before the run is ended (FINISHED or FAILED)

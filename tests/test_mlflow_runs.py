@@ -90,3 +90,39 @@ def test_an_unknown_parent_leaves_the_run_standalone(store, monkeypatch, capsys)
         run_id = run.run_id
     assert "stands alone" in capsys.readouterr().err
     assert "mlflow.parentRunId" not in mlflow.MlflowClient(uri).get_run(run_id).data.tags
+
+
+def _history(uri, key):
+    client = mlflow.MlflowClient(uri)
+    (run,) = client.search_runs([client.get_experiment_by_name("srmpc").experiment_id])
+    return run, sorted((m.step, m.value) for m in client.get_metric_history(run.info.run_id, key))
+
+
+def test_buffered_metrics_all_arrive_in_few_writes(store, monkeypatch):
+    uri, artifacts = store
+    writes = []
+    original = mlflow.MlflowClient.log_batch
+    monkeypatch.setattr(mlflow.MlflowClient, "log_batch",
+                        lambda self, run_id, metrics=(), **kw: writes.append(len(metrics)) or
+                        original(self, run_id, metrics=metrics, **kw))
+    with tracked_run(True, uri, artifacts, "srmpc", "evaluate-srmpc", _params(), "a: 1\n") as run:
+        run.flush_every_s = 3600.0
+        for episode in range(1100):  # 5 values each, as an evaluation's episodes
+            run.log_metrics({f"episode/{k}": float(episode) for k in "abcde"}, step=episode)
+        run.log_metrics({"mean_event_cost": 0.25})
+    mlflow_run, history = _history(uri, "episode/c")
+    assert history == [(e, float(e)) for e in range(1100)]
+    assert mlflow_run.data.metrics["mean_event_cost"] == 0.25 and mlflow_run.info.status == "FINISHED"
+    metric_writes = [n for n in writes if n]  # log_params also goes through log_batch, without metrics
+    assert metric_writes == [1000] * 5 + [501]  # full batches of 1000 values, then the rest at the end
+
+
+def test_buffered_metrics_of_a_failed_run_are_kept(store):
+    uri, artifacts = store
+    with pytest.raises(SystemExit):
+        with tracked_run(True, uri, artifacts, "srmpc", "evaluate-srmpc", _params(), "a: 1\n") as run:
+            for episode in range(3):
+                run.log_metrics({"episode/c": float(episode)}, step=episode)
+            raise SystemExit(143)  # SIGTERM's path
+    mlflow_run, history = _history(uri, "episode/c")
+    assert history == [(0, 0.0), (1, 1.0), (2, 2.0)] and mlflow_run.info.status == "FAILED"
