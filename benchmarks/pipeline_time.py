@@ -47,6 +47,10 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from srmpc.stages.evaluate import available_cores  # noqa: E402
+
 TARGETS_S = {"dvc_repro_wall_s": 3600.0, "downstream_of_training_s": 900.0}
 """The issue's targets on this project's 2-core machine: the whole pipeline in 60 min, downstream in 15."""
 STAGE_LINE = re.compile(r"^Running stage '([^']+)':")
@@ -229,7 +233,7 @@ def main() -> None:
         "commit": commit,
         "setup_s": setup_s,
         "cpu_count": os.cpu_count(),
-        "available_cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        "available_cores": available_cores(),
         "load_average_1min_before": load_before[0],
         "load_average_1min_mean_during": sum(samples) / len(samples),
         "load_average_1min_max_during": max(samples),
