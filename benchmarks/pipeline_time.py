@@ -152,10 +152,13 @@ def training_runs(clone: Path, dvc_yaml: Path, training_stages: set[str]) -> lis
     for name in sorted(training_stages):
         for out in stages[name].get("outs", []):
             path = next(iter(out)) if isinstance(out, dict) else out
-            if path.endswith("/summary.json") and (clone / path).is_file():
-                summary = json.loads((clone / path).read_text())
-                runs.append({"stage": name, "output_dir": str(Path(path).parent), "wall_s": summary["wall_s"],
-                             "frames": summary["frames"]})
+            summary_path = clone / path / "summary.json"  # an output directory per training
+            if path.endswith("/summary.json"):  # or its files one by one
+                summary_path = clone / path
+            if summary_path.is_file():
+                summary = json.loads(summary_path.read_text())
+                runs.append({"stage": name, "output_dir": str(summary_path.parent.relative_to(clone)),
+                             "wall_s": summary["wall_s"], "frames": summary["frames"]})
     return runs
 
 

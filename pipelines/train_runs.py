@@ -12,6 +12,14 @@ the failed runs. SIGTERM or Ctrl-C is passed on to the running trainings, which 
 a rerun resumes each from ``last.pt`` (finished runs are skipped by the trainer itself).
 
     python pipelines/train_runs.py --jobs 2 "agent=ppo agent.seed=0 agent.output_dir=..." "agent=..."
+
+Runs are named three ways, combined in this order (DVC's stages name them, conf/ defines them):
+
+- positional: one training's overrides each, e.g. ``"agent=ppo_lsi"``;
+- ``--seeds 0 1 2``: each positional run once per seed (``agent.seed=<seed>``; output directory by default
+  ``results/training/<agent>/seed_<seed>``), in the order run 1 seed 0, run 1 seed 1, ..., run 2 seed 0;
+- ``--experiments GROUP``: one run ``+experiment=GROUP/<name>`` per ``conf/experiment/GROUP/<name>.yaml``,
+  in name order. Each experiment file defines its run whole, output directory included.
 """
 
 from __future__ import annotations
@@ -25,6 +33,9 @@ import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
+
+EXPERIMENTS = Path(__file__).resolve().parents[1] / "conf" / "experiment"
 
 
 @dataclass
@@ -41,6 +52,18 @@ def output_dir_of(overrides: str) -> str:
         if token.startswith("agent.output_dir="):
             return token.split("=", 1)[1]
     return overrides
+
+
+def expand_runs(runs: list[str], seeds: list[int], experiments: str | None) -> list[str]:
+    """The trainings that the positional runs, ``--seeds`` and ``--experiments`` name (module docstring)."""
+    expanded = [f"{run} agent.seed={seed}" for run in runs for seed in seeds] if seeds else list(runs)
+    if experiments is not None:
+        group = EXPERIMENTS / experiments
+        names = sorted(path.stem for path in group.glob("*.yaml"))
+        if not names:
+            raise SystemExit(f"train_runs: --experiments {experiments}: no experiment files in {group}")
+        expanded += [f"+experiment={experiments}/{name}" for name in names]
+    return expanded
 
 
 def available_cores() -> int:
@@ -86,14 +109,22 @@ def run_trainings(runs: list[str], jobs: int, python: str = sys.executable) -> l
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", nargs="+", help="one training's overrides each, e.g. 'agent=ppo agent.seed=0'")
+    parser.add_argument("runs", nargs="*", help="one training's overrides each, e.g. 'agent=ppo agent.seed=0'")
     parser.add_argument("--jobs", type=int, default=0, help="trainings at once (0: one per available core)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[], help="each positional run once per seed")
+    parser.add_argument("--experiments", default=None, metavar="GROUP",
+                        help="one run per conf/experiment/GROUP/*.yaml (+experiment=GROUP/<name>)")
     args = parser.parse_args()
     if args.jobs < 0:
         parser.error(f"--jobs={args.jobs}: must be >= 0 (0: one per available core)")
+    if args.seeds and not args.runs:
+        parser.error("--seeds: needs at least one positional run to repeat per seed")
+    runs = expand_runs(args.runs, args.seeds, args.experiments)
+    if not runs:
+        parser.error("no trainings named: give runs, --seeds with runs, or --experiments")
     jobs = args.jobs or available_cores()
-    print(f"{len(args.runs)} trainings, {jobs} at a time", flush=True)
-    finished = run_trainings(args.runs, jobs)
+    print(f"{len(runs)} trainings, {jobs} at a time", flush=True)
+    finished = run_trainings(runs, jobs)
     failed = [f for f in finished if f.returncode != 0]
     if failed:
         names = ", ".join(f"{output_dir_of(f.overrides)} (exit {f.returncode})" for f in failed)

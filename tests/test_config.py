@@ -11,11 +11,13 @@ from srmpc.config.compose import CONFIG_DIR, ConfigError, compose_config, to_obj
 from srmpc.config.schema import Config
 from srmpc.scenario.parameters import ScenarioParameters
 
-EXPERIMENTS = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
+EXPERIMENTS = sorted(p.relative_to(CONFIG_DIR / "experiment").with_suffix("").as_posix()
+                     for p in (CONFIG_DIR / "experiment").rglob("*.yaml"))
 
 
 def test_the_paper_experiments_exist():
     assert {"light_traffic", "dense_traffic", "smoke"} <= set(EXPERIMENTS)
+    assert {"multiplier_ablation/ppo_lsi", "multiplier_ablation/ppo"} <= set(EXPERIMENTS)
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)

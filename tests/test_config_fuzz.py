@@ -1,7 +1,7 @@
 """Every leaf of the composed schema refuses bad values at composition, naming its full key.
 
 The leaves are found by walking the composed config, so a field added later is covered without a
-test change; a leaf whose dataclass declares no check (``srmpc.config.validation.check_fields``)
+test change; a leaf whose dataclass declares no check (``srmpc.value_checks.check_fields``)
 fails :func:`test_every_leaf_declares_what_it_accepts`. Each leaf gets bad values of its kind (wrong
 type, null, NaN, +-inf, empty strings, wrong list lengths, the values just outside its declared range)
 and, through hypothesis, random values outside that range. The bulk goes through Hydra's override
@@ -28,7 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from srmpc.config.compose import ConfigError, compose_config, describe_config_error, to_objects
-from srmpc.config.validation import Interval, Text, Vector, declared_checks
+from srmpc.value_checks import Interval, Text, Vector, declared_checks
 
 BASE = compose_config([])  # builds every schema dataclass once, which records their declared checks
 
@@ -177,7 +177,7 @@ def test_every_leaf_declares_what_it_accepts():
             continue
         assert leaf.check is not None, (
             f"{leaf.key}: {leaf.owner.__name__}.__post_init__ declares no check for {leaf.name!r} "
-            "(srmpc.config.validation.check_fields)")
+            "(srmpc.value_checks.check_fields)")
         kinds[leaf.key] = type(leaf.check).__name__
     assert len(LEAVES) >= 90 and {"agent.actor_lr", "planner.state_weights", "tracking.uri"} <= set(kinds)
 

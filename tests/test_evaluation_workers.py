@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from srmpc.config.compose import ConfigError, compose_config, to_objects
-from srmpc.evaluation import evaluate, evaluate_in_workers
+from srmpc.episode_loop import evaluate, evaluate_in_workers
 from srmpc.stages.evaluate import evaluation_workers, read_finished_episodes, run_evaluation
 from srmpc.tracking import Run
 

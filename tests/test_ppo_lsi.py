@@ -11,13 +11,13 @@ from tensordict.nn import TensorDictModule
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from srmpc.agents.checkpoint import load_actor
-from srmpc.agents.evaluation import first_episode_returns
 from srmpc.agents.hyperparameters import PPOHyperparameters, TrainTask
 from srmpc.agents.networks import COST_VALUE_KEY
 from srmpc.agents.ppo_lsi_loss import PPOLSILoss
 from srmpc.agents.report import read_metrics, summarize_training
 from srmpc.agents.toy_env import ToyConstrainedEnv
 from srmpc.agents.trainer import NonFiniteError, Trainer, build_loss, parameter_groups
+from tests.policy_returns import first_episode_returns
 
 torch.set_num_threads(1)  # as the trainer does: small MLPs, and spinning threads stall a shared machine
 LOW, HIGH = torch.tensor([-0.1, -5.0]), torch.tensor([0.1, 5.0])

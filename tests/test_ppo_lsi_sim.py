@@ -7,11 +7,11 @@ import time
 import pytest
 import torch
 
-from srmpc.agents.evaluation import first_episode_returns
 from srmpc.agents.hyperparameters import PPOHyperparameters
 from srmpc.agents.trainer import Trainer
 from srmpc.scenario.parameters import ScenarioParameters
 from srmpc.sim.torchrl_env import TwinHighwayEnv
+from tests.policy_returns import first_episode_returns
 
 PARAMS = ScenarioParameters()
 torch.set_num_threads(1)  # as the trainer does: small MLPs, and spinning threads stall a shared machine

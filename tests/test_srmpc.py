@@ -12,7 +12,7 @@ import pytest
 
 from srmpc.config.compose import ConfigError, compose_config, to_objects
 from srmpc.controllers.srmpc import OtherVehiclePrediction, ReferenceSelection, SrmpcController, SrmpcSettings
-from srmpc.evaluation import run_episode
+from srmpc.episode_loop import run_episode
 from srmpc.mpc import LtvMpcController, OcpConfig
 from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
 from srmpc.mpc.ocp import lane_keeping_tracking_reference

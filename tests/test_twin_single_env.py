@@ -3,7 +3,7 @@
 import numpy as np
 
 from srmpc.controllers.lane_keeping import LaneKeepingController
-from srmpc.evaluation import run_episode
+from srmpc.episode_loop import run_episode
 from srmpc.scenario.observation import OBSERVATION_SCALE
 from srmpc.scenario.parameters import ScenarioParameters
 from srmpc.sim.single_env import TwinScenarioEnv

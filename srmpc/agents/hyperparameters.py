@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
-from srmpc.config.validation import (
+from srmpc.value_checks import (
     DISCOUNT,
     FINITE,
     NON_NEGATIVE,

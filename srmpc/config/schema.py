@@ -2,7 +2,7 @@
 
 A wrong type, an unknown key or a bad enum value in any YAML file or override is rejected at
 composition, naming the key; so is a value outside what the field declares in its ``__post_init__``
-(``srmpc.config.validation``: finite numbers in a range, list lengths, non-empty strings). The entry
+(``srmpc.value_checks``: finite numbers in a range, list lengths, non-empty strings). The entry
 points convert these nodes into the plain dataclasses that library code takes (``OmegaConf.to_object``).
 """
 
@@ -14,10 +14,10 @@ from enum import Enum
 from hydra.core.config_store import ConfigStore
 
 from srmpc.agents.hyperparameters import PPOHyperparameters
-from srmpc.config.validation import NON_NEGATIVE, TEXT, Interval, Vector, at_least, check_fields
 from srmpc.controllers.srmpc import MAX_RELINEARIZATIONS, SrmpcSettings
 from srmpc.scenario.observation import SLOT_COUNT
 from srmpc.scenario.parameters import ScenarioParameters
+from srmpc.value_checks import NON_NEGATIVE, TEXT, Interval, Vector, at_least, check_fields
 
 
 class Stage(Enum):

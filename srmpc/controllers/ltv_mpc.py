@@ -8,32 +8,7 @@ import numpy as np
 
 from srmpc.controllers.outcomes import OUTCOME_KEYS, REFERENCE_OUTCOMES
 from srmpc.mpc.controller import LtvMpcController
-from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights
 from srmpc.mpc.planner import StepOutcome
-from srmpc.scenario import road
-from srmpc.scenario.parameters import ScenarioParameters
-
-
-def ocp_config(
-    scenario: ScenarioParameters,
-    horizon_steps: int,
-    max_vehicles: int,
-    weights: TrackingWeights,
-    geometry: CollisionGeometry,
-) -> OcpConfig:
-    """The OCP for ``scenario``: its action box as input bounds, its road edges as lateral bounds."""
-    return OcpConfig(
-        horizon=horizon_steps,
-        max_vehicles=max_vehicles,
-        steering_bounds_rad=(-scenario.steering_max_rad, scenario.steering_max_rad),
-        acceleration_bounds_m_s2=(scenario.acceleration_min_mps2, scenario.acceleration_max_mps2),
-        lateral_bounds_m=(
-            road.LEFT_ROAD_EDGE + road.VEHICLE_WIDTH / 2.0,
-            road.RIGHT_ROAD_EDGE - road.VEHICLE_WIDTH / 2.0,
-        ),
-        weights=weights,
-        geometry=geometry,
-    )
 
 
 class LtvMpcSceneController:

@@ -9,7 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from srmpc.config.validation import (
+from srmpc.scenario import road
+from srmpc.value_checks import (
     NON_NEGATIVE,
     NON_POSITIVE,
     POSITIVE,
@@ -19,7 +20,6 @@ from srmpc.config.validation import (
     at_least,
     check_fields,
 )
-from srmpc.scenario import road
 
 
 def _check(condition: bool, key: str, value: object, expectation: str) -> None:

@@ -29,11 +29,12 @@ from srmpc.config.compose import ConfigError
 from srmpc.config.schema import Config, ControllerName, SimulatorName
 from srmpc.controllers import Controller
 from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGains
-from srmpc.controllers.ltv_mpc import LtvMpcSceneController, ocp_config
+from srmpc.controllers.ltv_mpc import LtvMpcSceneController
 from srmpc.controllers.outcomes import OUTCOME_KEYS
 from srmpc.controllers.policy import PolicyController
+from srmpc.controllers.scenario_ocp import ocp_config
 from srmpc.controllers.srmpc import SceneSource, SrmpcController
-from srmpc.evaluation import EpisodeRecord, evaluate, evaluate_in_workers
+from srmpc.episode_loop import EpisodeRecord, evaluate, evaluate_in_workers
 from srmpc.metrics import EpisodeMetrics, aggregate_metrics
 from srmpc.mpc.controller import LtvMpcController
 from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights, lane_keeping_tracking_reference

@@ -7,8 +7,9 @@ controller exactly as the evaluation drives it.
 
 import pytest
 
-from srmpc.controllers.ltv_mpc import LtvMpcSceneController, ocp_config
-from srmpc.evaluation import run_episode
+from srmpc.controllers.ltv_mpc import LtvMpcSceneController
+from srmpc.controllers.scenario_ocp import ocp_config
+from srmpc.episode_loop import run_episode
 from srmpc.mpc import CollisionGeometry, LtvMpcController, OcpConfig, StepOutcome, TrackingWeights
 from srmpc.mpc.solvers import QpSolution, make_solver
 from srmpc.scenario import road

@@ -1,0 +1,103 @@
+"""dvc.yaml reads in one pass: short commands, runs defined in conf/, and the committed results are theirs.
+
+- every command, as written and as DVC renders it (``dvc.lock``), is at most 200 characters;
+- the file is under 300 lines;
+- every stage of ``dvc.yaml`` is in ``dvc.lock`` with the command it renders to there, so the lock describes
+  this pipeline, not an older one;
+- each training directory's committed ``config.yaml`` is what its stage's run composes to today: a run
+  defined in ``conf/experiment/multiplier_ablation/`` (or by agent and seed) resumes in its own directory
+  instead of being refused there.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from omegaconf import OmegaConf
+
+from srmpc.config.compose import compose_config
+from srmpc.stages.train import _identity_yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+DVC_YAML = yaml.safe_load((ROOT / "dvc.yaml").read_text())
+DVC_LOCK = yaml.safe_load((ROOT / "dvc.lock").read_text())
+SPEC = importlib.util.spec_from_file_location("train_runs", ROOT / "pipelines" / "train_runs.py")
+train_runs = importlib.util.module_from_spec(SPEC)
+sys.modules["train_runs"] = train_runs  # its dataclass looks its module up
+SPEC.loader.exec_module(train_runs)
+MAX_CMD = 200
+
+
+def _commands(stage: dict) -> str:
+    return " ".join((stage.get("cmd") or stage["do"]["cmd"]).split())
+
+
+def test_every_command_is_short_as_written_and_as_rendered():
+    long = {name: len(_commands(stage)) for name, stage in DVC_YAML["stages"].items()
+            if len(_commands(stage)) > MAX_CMD}
+    long |= {name: len(stage["cmd"]) for name, stage in DVC_LOCK["stages"].items() if len(stage["cmd"]) > MAX_CMD}
+    assert not long, f"commands over {MAX_CMD} characters: {long}"
+
+
+def test_the_file_reads_in_one_pass():
+    assert len((ROOT / "dvc.yaml").read_text().splitlines()) < 300
+
+
+def test_every_stage_is_locked_with_its_command():
+    locked = DVC_LOCK["stages"]
+    for name, stage in DVC_YAML["stages"].items():
+        if "matrix" in stage or "foreach" in stage:  # name@<values>, one per combination
+            instances = [key for key in locked if key.startswith(f"{name}@")]
+            expected = len(stage["foreach"]) if "foreach" in stage else int(
+                np.prod([len(values) for values in stage["matrix"].values()]))
+            assert len(instances) == expected, f"{name}: {len(instances)} instances in dvc.lock, {expected} in dvc.yaml"
+        else:
+            assert name in locked, f"{name}: not in dvc.lock"
+            assert " ".join(locked[name]["cmd"].split()) == _commands(stage), name
+
+
+def _training_runs(cmd: str) -> list[list[str]]:
+    """The runs one train_runs.py command names, each as its CLI overrides."""
+    import shlex
+
+    tokens = shlex.split(cmd)[2:]
+    seeds, experiments, runs = [], None, []
+    while tokens:
+        token = tokens.pop(0)
+        if token == "--seeds":
+            while tokens and tokens[0].isdigit():
+                seeds.append(int(tokens.pop(0)))
+        elif token == "--experiments":
+            experiments = tokens.pop(0)
+        else:
+            runs.append(token)
+    return [["stage=train", *shlex.split(run)] for run in train_runs.expand_runs(runs, seeds, experiments)]
+
+
+@pytest.mark.parametrize("stage", ["train", "train_multiplier_ablation"])
+def test_each_training_directory_holds_its_runs_config(stage):
+    runs = _training_runs(DVC_YAML["stages"][stage]["cmd"])
+    outs = [next(iter(out)) for out in DVC_YAML["stages"][stage]["outs"]]
+    assert len(runs) == len(outs)
+    for overrides in runs:
+        container = OmegaConf.to_container(compose_config(overrides), resolve=True)
+        agent = container["agent"]
+        directory = agent["output_dir"] or f"results/training/{agent['name']}/seed_{agent['seed']}"
+        assert directory in outs, f"{overrides}: writes {directory}, not an output of {stage}"
+        committed = yaml.safe_load((ROOT / directory / "config.yaml").read_text())
+        assert yaml.safe_load(_identity_yaml(container)) == committed, f"{overrides}: not the config of {directory}"
+
+
+def test_runs_expand_per_seed_then_per_experiment_file():
+    runs = train_runs.expand_runs(["agent=ppo_lsi", "agent=ppo"], [0, 1], "multiplier_ablation")
+    assert runs[:4] == ["agent=ppo_lsi agent.seed=0", "agent=ppo_lsi agent.seed=1",
+                        "agent=ppo agent.seed=0", "agent=ppo agent.seed=1"]
+    assert runs[4:] == [f"+experiment=multiplier_ablation/{name}" for name in
+                        ["fac", "ma", "ma_discounted", "ma_discounted_fast", "ma_fast", "per_step", "ppo", "ppo_lsi"]]
+    with pytest.raises(SystemExit, match="--experiments nope: no experiment files"):
+        train_runs.expand_runs([], [], "nope")
