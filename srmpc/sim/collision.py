@@ -117,6 +117,30 @@ def polygons_intersecting(
     return intersecting, False, 0.0, 0.0
 
 
+SIDE_BY_SIDE_MARGIN = 1e-9
+"""Relative slack on the lateral gap of :func:`side_by_side_apart` (the SAT's rounding is ~1e-15 m)."""
+COORDINATE_LIMIT = 1e6
+"""|x|, |y| [m] below which :func:`side_by_side_apart`'s rounding argument holds."""
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def side_by_side_apart(x_i: float, y_i: float, v_i: float, x_j: float, y_j: float, v_j: float) -> bool:
+    """Whether :func:`polygons_intersecting` of two vehicles with heading exactly 0 surely returns
+    (False, False), because their lateral gap |y_j - y_i| - WIDTH is positive.
+
+    With heading 0, cos = 1 and sin = 0 exactly, so the second edge normal of polygon a is (0, ~1)
+    (nx exactly 0, ny within an ulp of 1), the displacement's y component is exactly 0, and on that
+    axis both the static and the extended interval distance are |y_j - y_i| - WIDTH up to a few ulps
+    of |y| + 1. Both positive: the SAT returns (False, False) there at the latest, and
+    :func:`handle_pair` does nothing. Finite, moderate coordinates and speeds keep that argument
+    exact; anything else goes through the SAT.
+    """
+    if not (abs(x_i) < COORDINATE_LIMIT and abs(x_j) < COORDINATE_LIMIT and abs(y_i) < COORDINATE_LIMIT
+            and abs(y_j) < COORDINATE_LIMIT and abs(v_i) < np.inf and abs(v_j) < np.inf):
+        return False
+    return abs(y_j - y_i) - VEHICLE_WIDTH > SIDE_BY_SIDE_MARGIN * (1.0 + abs(y_i) + abs(y_j))
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def handle_pair(
     vehicles: np.ndarray,
@@ -134,6 +158,10 @@ def handle_pair(
     dy = vehicles[j, Y] - vehicles[i, Y]
     if np.sqrt(dx * dx + dy * dy) > (VEHICLE_DIAGONAL + VEHICLE_DIAGONAL) / 2 + vehicles[i, SPEED] * dt:
         return
+    if vehicles[i, HEADING] == 0.0 and vehicles[j, HEADING] == 0.0 and side_by_side_apart(
+        vehicles[i, X], vehicles[i, Y], vehicles[i, SPEED], vehicles[j, X], vehicles[j, Y], vehicles[j, SPEED]
+    ):
+        return  # vehicles side by side in their lanes, driving straight: no contact, no impact
     polygon(vehicles[i, X], vehicles[i, Y], vehicles[i, HEADING], poly_a)
     polygon(vehicles[j, X], vehicles[j, Y], vehicles[j, HEADING], poly_b)
     displacement_x = vehicles[i, SPEED] * np.cos(vehicles[i, HEADING]) * dt - vehicles[j, SPEED] * np.cos(
@@ -155,7 +183,7 @@ def handle_pair(
         crashed[j] = True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def handle_collisions(
     vehicles: np.ndarray,
     crashed: np.ndarray,
@@ -167,10 +195,13 @@ def handle_collisions(
     pair_keys: np.ndarray,
     poly_a: np.ndarray,
     poly_b: np.ndarray,
+    pair_first: np.ndarray,
+    pair_second: np.ndarray,
 ) -> None:
     """All pairs of one scene, in road order (``order`` sorted by x; ``rank``: road rank by storage).
 
-    ``pair_keys`` is a work buffer of at least N (N - 1) / 2 int64.
+    ``pair_keys``, ``pair_first``, ``pair_second`` are work buffers of at least N (N - 1) / 2 + 1
+    int64 (the candidate pairs' road-order keys and storage indices, sorted by key).
     """
     n = order.shape[0]
     fastest = 0.0
@@ -184,20 +215,17 @@ def handle_collisions(
             j = order[q]
             if vehicles[j, X] - vehicles[i, X] > bound:
                 break
-            low, high = (rank[i], rank[j]) if rank[i] < rank[j] else (rank[j], rank[i])
-            key = low * n + high
+            first, second = (i, j) if rank[i] < rank[j] else (j, i)
+            key = rank[first] * n + rank[second]
             slot = pairs  # insertion sort by key: road order of pairs
             while slot > 0 and pair_keys[slot - 1] > key:
                 pair_keys[slot] = pair_keys[slot - 1]
+                pair_first[slot] = pair_first[slot - 1]
+                pair_second[slot] = pair_second[slot - 1]
                 slot -= 1
             pair_keys[slot] = key
+            pair_first[slot] = first
+            pair_second[slot] = second
             pairs += 1
-    if pairs == 0:
-        return
-    storage = np.empty(n, dtype=np.int64)  # road rank -> storage index
-    for k in range(n):
-        storage[rank[k]] = k
     for m in range(pairs):
-        i = storage[pair_keys[m] // n]
-        j = storage[pair_keys[m] % n]
-        handle_pair(vehicles, crashed, impact, has_impact, i, j, dt, poly_a, poly_b)
+        handle_pair(vehicles, crashed, impact, has_impact, pair_first[m], pair_second[m], dt, poly_a, poly_b)

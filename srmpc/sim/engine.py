@@ -55,7 +55,7 @@ StepOutputs = namedtuple(
 """Output arrays of a batched step (allocated once by the caller, overwritten in place)."""
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def road_ranks(ego_rank: int, n: int, rank: np.ndarray) -> None:
     """rank[k] = road-order position of storage index k (the ego is stored last)."""
     for k in range(n - 1):
@@ -63,7 +63,7 @@ def road_ranks(ego_rank: int, n: int, rank: np.ndarray) -> None:
     rank[n - 1] = ego_rank
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def sort_by_x(vehicles: np.ndarray, order: np.ndarray, rank: np.ndarray, position: np.ndarray) -> None:
     """Insertion-sort ``order`` by (x, road rank), O(N) when nearly sorted; position = its inverse."""
     n = order.shape[0]
@@ -98,9 +98,55 @@ def measure(s, c, b: int, observation: np.ndarray, slot_vehicle: np.ndarray, raw
     return safety_index(ego, others, slot_vehicle, c.si_sigma, c.si_d_min, c.si_edge_d_min, c.si_n, c.si_k)
 
 
+Workspace = namedtuple(
+    "Workspace",
+    [
+        "rank",  # (N,) int64: road rank of each storage index
+        "position",  # (N,) int64: inverse of ``order``
+        "pair_keys",  # (N (N - 1) / 2 + 1,) int64: collision candidates' road-order keys
+        "pair_first",  # (N (N - 1) / 2 + 1,) int64: their storage indices, first in road order
+        "pair_second",  # (N (N - 1) / 2 + 1,) int64: and second
+        "poly_a",  # (5, 2) polygon work buffer
+        "poly_b",  # (5, 2)
+        "lane_leader",  # (N,) int64
+        "target_leader",  # (N,) int64
+        "last_on_lane",  # (lanes,) int64
+    ],
+)
+"""Work buffers of :func:`simulate_in`, allocated once per scene (their contents carry nothing)."""
+
+
+@njit(cache=True, error_model="numpy")
+def workspace(n: int, lane_count: int) -> Workspace:
+    """Fresh :data:`Workspace` for scenes of ``n`` vehicles on ``lane_count`` lanes."""
+    return Workspace(
+        np.empty(n, dtype=np.int64),
+        np.empty(n, dtype=np.int64),
+        np.empty(n * (n - 1) // 2 + 1, dtype=np.int64),
+        np.empty(n * (n - 1) // 2 + 1, dtype=np.int64),
+        np.empty(n * (n - 1) // 2 + 1, dtype=np.int64),
+        np.empty((5, 2)),
+        np.empty((5, 2)),
+        np.empty(n, dtype=np.int64),
+        np.empty(n, dtype=np.int64),
+        np.empty(lane_count, dtype=np.int64),
+    )
+
+
 @njit(cache=True, error_model="numpy")
 def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
     """Advance scene b by one control step (``substeps`` integration steps) with the ego's action."""
+    simulate_in(s, c, b, steering, acceleration, workspace(c.vehicles, c.lane_count))
+
+
+@njit(cache=True, error_model="numpy")
+def simulate_in(s, c, b: int, steering: float, acceleration: float, w) -> None:
+    """:func:`simulate` with the work buffers ``w`` (a :data:`Workspace`).
+
+    ``order`` is sorted by x before the leader search of the first sub-step and after every
+    integration; positions do not move between that sort and the next sub-step's leader search
+    (collisions only mark impacts), so later sub-steps reuse it.
+    """
     n = c.vehicles
     ego = n - 1
     vehicles = s.vehicles[b]
@@ -111,24 +157,18 @@ def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
     lane = s.lane[b]
     target_lane = s.target_lane[b]
     order = s.order[b]
-    rank = np.empty(n, dtype=np.int64)
-    position = np.empty(n, dtype=np.int64)
-    pair_keys = np.empty(n * (n - 1) // 2 + 1, dtype=np.int64)
-    poly_a = np.empty((5, 2))
-    poly_b = np.empty((5, 2))
-    lane_leader = np.empty(n, dtype=np.int64)
-    target_leader = np.empty(n, dtype=np.int64)
+    rank, position, lane_leader, target_leader = w.rank, w.position, w.lane_leader, w.target_leader
     road_ranks(s.ego_rank[b], n, rank)
     held_steering, held_acceleration = ego_control(
         steering, acceleration, c.steering_max, c.acceleration_min, c.acceleration_max
     )
     control[ego, STEERING] = held_steering
     control[ego, ACCELERATION] = held_acceleration
+    sort_by_x(vehicles, order, rank, position)
     for _ in range(c.substeps):
-        sort_by_x(vehicles, order, rank, position)
         all_leaders(
             vehicles, order, position, lane, target_lane, c.lane_count, c.lane_width, c.road_length,
-            lane_leader, target_leader,
+            lane_leader, target_leader, w.last_on_lane,
         )
         for k in range(n - 1):  # IDMVehicle.act
             if crashed[k]:
@@ -147,7 +187,8 @@ def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
             integrate(vehicles, control, crashed, lane, k, c.dt, c.lane_count, c.lane_width, c.road_length)
         apply_impacts(vehicles, crashed, impact, has_impact, lane, c.lane_count, c.lane_width, c.road_length)
         sort_by_x(vehicles, order, rank, position)
-        handle_collisions(vehicles, crashed, impact, has_impact, order, rank, c.dt, pair_keys, poly_a, poly_b)
+        handle_collisions(vehicles, crashed, impact, has_impact, order, rank, c.dt, w.pair_keys, w.poly_a, w.poly_b,
+                          w.pair_first, w.pair_second)
     s.steps[b] += 1
 
 

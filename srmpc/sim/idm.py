@@ -105,7 +105,7 @@ def _direction(heading: float) -> tuple[float, float]:
     return np.cos(heading), np.sin(heading)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def all_leaders(
     vehicles: np.ndarray,
     order: np.ndarray,
@@ -117,12 +117,14 @@ def all_leaders(
     road_length: float,
     lane_leader: np.ndarray,
     target_leader: np.ndarray,
+    last_on_lane: np.ndarray,
 ) -> None:
     """:func:`leader` of every vehicle on its lane and on its target lane, in one sweep.
 
     Sweeping ``order`` from the front, the last vehicle seen on each lane is the leader of the
     next vehicle behind it on that lane. This equals :func:`leader` whenever no two x are exactly
     equal (ties are resolved by road order there); on a tie the scan :func:`leader` is used.
+    ``last_on_lane`` is a work buffer of at least ``lane_count`` int64.
     """
     n = order.shape[0]
     for p in range(1, n):
@@ -131,7 +133,7 @@ def all_leaders(
                 lane_leader[k] = leader(vehicles, order, position, k, lane[k], lane_width, road_length)
                 target_leader[k] = leader(vehicles, order, position, k, target_lane[k], lane_width, road_length)
             return
-    last_on_lane = np.full(lane_count, -1, dtype=np.int64)
+    last_on_lane[:lane_count] = -1
     for p in range(n - 1, -1, -1):
         k = order[p]
         lane_leader[k] = last_on_lane[lane[k]]

@@ -88,7 +88,7 @@ class MlpPolicy:
         return z
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _dense(weight_t: np.ndarray, bias: np.ndarray, x: np.ndarray, out: np.ndarray, activate: bool) -> None:
     """out = act(W x + b) with W given transposed (in, out): the inner loop runs over outputs and
     vectorizes, each output still summing b + W[i, 0] x[0] + W[i, 1] x[1] + ... in that order."""

@@ -26,7 +26,7 @@ from srmpc.scenario.reward import reward_prime
 from srmpc.scenario.safety_index import safety_index_cost
 from srmpc.sim import engine
 from srmpc.sim.constants import SimConstants
-from srmpc.sim.engine import measure, simulate
+from srmpc.sim.engine import measure, simulate_in, workspace
 from srmpc.sim.mlp import MlpPolicy, mlp_action
 from srmpc.sim.state import HEADING, SPEED, SceneState, X, Y
 from srmpc.sim.vehicle import on_lane
@@ -72,6 +72,7 @@ def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squa
     h0 = np.empty(w0.shape[1])
     h1 = np.empty(w1.shape[1])
     z = np.empty(w2.shape[1])
+    work = workspace(n, c.lane_count)
     phi = measure(s, c, b, observation, slot_vehicle, raw)
     for t in range(horizon + 1):
         for i in range(4):
@@ -87,7 +88,7 @@ def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squa
         acceleration = min(max(acceleration, c.acceleration_min), c.acceleration_max)
         action_out[b, t, 0] = steering
         action_out[b, t, 1] = acceleration
-        simulate(s, c, b, steering, acceleration)
+        simulate_in(s, c, b, steering, acceleration, work)
         phi_after = measure(s, c, b, observation, slot_vehicle, raw)
         cost_out[b, t] = safety_index_cost(phi, phi_after, c.si_eta, c.si_cost_floor)
         phi = phi_after

@@ -53,7 +53,7 @@ def on_lane(x: float, y: float, lane: int, lane_width: float, road_length: float
     )
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def ego_control(
     steering: float, acceleration: float, steering_max: float, acceleration_min: float, acceleration_max: float
 ) -> tuple[float, float]:
@@ -131,7 +131,7 @@ def integrate(
     lane[k] = closest_lane_index(x, y, heading, lane_count, lane_width, road_length)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def apply_impacts(
     vehicles: np.ndarray,
     crashed: np.ndarray,
