@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from srmpc.mpc import DEFAULT_SOLVER, LtvMpcController, OcpConfig
+from srmpc.controllers.ltv_mpc import LtvMpcController
+from srmpc.mpc import DEFAULT_SOLVER, LtvMpcPlanner, OcpConfig
 from srmpc.mpc.solvers import available_solvers, make_solver
 from srmpc.scenario.parameters import ScenarioParameters
 from srmpc.sim.single_env import TwinScenarioEnv
@@ -75,7 +76,7 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
     for scene_name, spacing in SCENES.items():
         for episode in range(episodes):
             seed = 1000 * episode + (0 if scene_name == "light" else 1)
-            controllers = {name: LtvMpcController(config, solver=name) for name in names}
+            controllers = {name: LtvMpcController(LtvMpcPlanner(config, solver=name)) for name in names}
             params = ScenarioParameters(traffic=scene_name, mean_spawn_gap_m=spacing,
                                         vehicles_count=OTHERS_PER_SCENE, episode_steps=steps)
             scenes = {name: TwinScenarioEnv(params) for name in names}
@@ -90,7 +91,7 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
                     record, controller, scene = records[name], controllers[name], scenes[name]
                     measurement = scene.measurement
                     observed = measurement.slot_vehicle[measurement.slot_vehicle >= 0]
-                    action, report = controller.act(measurement.ego, measurement.others[observed])
+                    action, report = controller.step(measurement.ego, measurement.others[observed])
                     if step >= WARMUP_STEPS:  # numba/solver warm-up
                         record["step"].append(report.step_time_us)
                         record["solve"].append(report.solve_time_us)

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from srmpc.config.compose import ConfigError, compose_config, to_objects
+from srmpc.controllers.ltv_mpc import LtvMpcController
 from srmpc.controllers.srmpc import OtherVehiclePrediction, ReferenceSelection, SrmpcController, SrmpcSettings
 from srmpc.episode_loop import run_episode
-from srmpc.mpc import LtvMpcController, OcpConfig
+from srmpc.mpc import OcpConfig
 from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
 from srmpc.mpc.ocp import lane_keeping_tracking_reference
 from srmpc.mpc.planner import LtvMpcPlanner, ReferenceSource, StepOutcome
@@ -114,7 +115,7 @@ def test_shifted_linearization_stays_behind_while_srmpc_plans_the_policys_overta
     ltv_mpc = LtvMpcController()
     for _ in range(steps):
         ego, others = observe(twin)
-        action, _ = ltv_mpc.act(ego, others)
+        action, _ = ltv_mpc.step(ego, others)
         assert not twin.step(action[None]).terminated[0]
     assert _gap_to_leader(twin) < -5.0  # still behind the leader
 

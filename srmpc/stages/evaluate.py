@@ -29,14 +29,13 @@ from srmpc.config.compose import ConfigError
 from srmpc.config.schema import Config, ControllerName, SimulatorName
 from srmpc.controllers import Controller
 from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGains
-from srmpc.controllers.ltv_mpc import LtvMpcSceneController
+from srmpc.controllers.ltv_mpc import LtvMpcController
 from srmpc.controllers.outcomes import OUTCOME_KEYS
 from srmpc.controllers.policy import PolicyController
 from srmpc.controllers.scenario_ocp import ocp_config
 from srmpc.controllers.srmpc import SceneSource, SrmpcController
 from srmpc.episode_loop import EpisodeRecord, evaluate, evaluate_in_workers
 from srmpc.metrics import EpisodeMetrics, aggregate_metrics
-from srmpc.mpc.controller import LtvMpcController
 from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights, lane_keeping_tracking_reference
 from srmpc.mpc.planner import LtvMpcPlanner
 from srmpc.scenario import road
@@ -125,10 +124,9 @@ def build_controller(config: Config, env: gymnasium.Env) -> Controller:
         )
     if name is ControllerName.ltv_mpc:
         ocp, y_ref = build_planner_objects(config)
-        return LtvMpcSceneController(
-            LtvMpcController(ocp, config.planner.solver, reference_lateral_position_m=y_ref,
-                             reference_speed_m_s=scenario.reward.vx_ref_mps)
-        )
+        tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
+                                                   control_period_s=ocp.control_period_s)
+        return LtvMpcController(LtvMpcPlanner(ocp, config.planner.solver), tracking)
     if name is ControllerName.srmpc:
         ocp, y_ref = build_planner_objects(config)
         srmpc = config.srmpc

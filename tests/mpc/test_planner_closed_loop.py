@@ -7,10 +7,10 @@ controller exactly as the evaluation drives it.
 
 import pytest
 
-from srmpc.controllers.ltv_mpc import LtvMpcSceneController
+from srmpc.controllers.ltv_mpc import LtvMpcController
 from srmpc.controllers.scenario_ocp import ocp_config
 from srmpc.episode_loop import run_episode
-from srmpc.mpc import CollisionGeometry, LtvMpcController, OcpConfig, StepOutcome, TrackingWeights
+from srmpc.mpc import CollisionGeometry, LtvMpcPlanner, OcpConfig, StepOutcome, TrackingWeights
 from srmpc.mpc.solvers import QpSolution, make_solver
 from srmpc.scenario import road
 from srmpc.scenario.parameters import ScenarioParameters
@@ -43,7 +43,7 @@ def run_scene(controller, twin, steps):
     outcomes = []
     for _ in range(steps):
         ego, others = observe(twin)
-        action, report = controller.act(ego, others)
+        action, report = controller.step(ego, others)
         outcomes.append(report.outcome)
         result = twin.step(action[None])
         if result.terminated[0]:
@@ -53,7 +53,7 @@ def run_scene(controller, twin, steps):
 
 def test_forced_failure_walks_the_fallback_chain():
     solver = FailingAfter(first_failure=4)
-    controller = LtvMpcController(solver=solver)
+    controller = LtvMpcController(LtvMpcPlanner(solver=solver))
     horizon = controller.config.horizon
     twin = hand_built_twin(ego=(100.0, 8.0, 0.0, 25.0))
     outcomes, termination = run_scene(controller, twin, 3 + horizon + 5)
@@ -65,7 +65,7 @@ def test_forced_failure_walks_the_fallback_chain():
 
 
 def test_failure_at_first_step_brakes_and_holds_lane():
-    controller = LtvMpcController(solver=FailingAfter(first_failure=1))
+    controller = LtvMpcController(LtvMpcPlanner(solver=FailingAfter(first_failure=1)))
     twin = hand_built_twin(ego=(100.0, 4.6, 0.0, 25.0))  # off-centre: the lane hold steers back
     outcomes, termination = run_scene(controller, twin, 40)
     assert termination == ""
@@ -93,7 +93,7 @@ def test_slower_leader_with_free_left_lane_no_collision():
     gaps = []
     for _ in range(400):
         ego, others = observe(twin)
-        action, _ = controller.act(ego, others)
+        action, _ = controller.step(ego, others)
         result = twin.step(action[None])
         assert not result.terminated[0], result.termination(0)
         ego, leader = ego_state(twin), other_states(twin)[0]
@@ -130,7 +130,7 @@ def test_traffic_episodes_without_collision(traffic, seed):
     params = ScenarioParameters(traffic=traffic, mean_spawn_gap_m=TRAFFIC_MEAN_SPAWN_GAP_M[traffic])
     config = OcpConfig()
     ocp = ocp_config(params, config.horizon, config.max_vehicles, TrackingWeights(), CollisionGeometry())
-    controller = LtvMpcSceneController(LtvMpcController(ocp))
+    controller = LtvMpcController(LtvMpcPlanner(ocp))
     metrics, reason, outcomes = run_episode(TwinScenarioEnv(params), controller, seed)
     assert reason == "truncated", f"episode ended by {reason} after {metrics.n_steps} steps"
     assert metrics.n_steps == params.episode_steps and metrics.event_cost == 0.0

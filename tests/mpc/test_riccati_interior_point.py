@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from srmpc.mpc import LtvMpcController, OcpConfig, StepOutcome
+from srmpc.controllers.ltv_mpc import LtvMpcController
+from srmpc.mpc import OcpConfig, StepOutcome
 from srmpc.mpc.ocp import lane_keeping_tracking_reference
 from srmpc.mpc.planner import LtvMpcPlanner
 from srmpc.mpc.prediction import predict_constant_velocity
@@ -86,10 +87,10 @@ def test_benchmark_scene_qps_agree_with_clarabel():
     for traffic, mean_spawn_gap_m, seed in (("light", 25.0, 0), ("dense", 15.0, 1)):
         env = TwinScenarioEnv(ScenarioParameters(traffic=traffic, mean_spawn_gap_m=mean_spawn_gap_m))
         env.reset(seed=seed)
-        controller = LtvMpcController(solver="riccati_ipm")
+        controller = LtvMpcController(LtvMpcPlanner(solver="riccati_ipm"))
         for step in range(60):
             scene = env.measurement
-            action, report = controller.act(scene.ego, scene.others[scene.slot_vehicle[scene.slot_vehicle >= 0]])
+            action, report = controller.step(scene.ego, scene.others[scene.slot_vehicle[scene.slot_vehicle >= 0]])
             assert report.outcome is StepOutcome.SOLVED
             if step % 5 == 0:
                 assert_agrees_with_clarabel(controller.planner.qp)
