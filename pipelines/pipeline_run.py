@@ -23,7 +23,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from srmpc.config.compose import compose_config, to_objects  # noqa: E402
-from srmpc.tracking import ensure_experiment, finish_parent_run, runs_table_url, start_parent_run  # noqa: E402
+from srmpc.tracking import (  # noqa: E402
+    TrackingServerUnreachable,
+    check_tracking_server,
+    ensure_experiment,
+    finish_parent_run,
+    runs_table_url,
+    start_parent_run,
+)
 
 ARTIFACTS = (  # (artifact folder of the parent run, local file or folder)
     ("table", ROOT / "results" / "table.md"),
@@ -48,6 +55,11 @@ def main() -> None:
     args, overrides = parser.parse_known_args()
     overrides = [o for o in overrides if o != "--"]
     tracking = to_objects(compose_config([f"tracking.{o.removeprefix('tracking.')}" for o in overrides])).tracking
+    try:
+        check_tracking_server(tracking.uri)
+    except TrackingServerUnreachable as error:
+        print(f"pipeline_run: error: {error}", file=sys.stderr)
+        sys.exit(2)
     if args.command == "start":
         print(start_parent_run(tracking.uri, tracking.experiment_name, tracking.artifact_location, args.name,
                                {"stage": "pipeline"}))
