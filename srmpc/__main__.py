@@ -61,6 +61,12 @@ def stage_output_dir(config: Config, hydra_dir: Path) -> tuple[Path, str]:
     return (Path(config.evaluation.output_dir) if config.evaluation.output_dir else hydra_dir), "evaluation.output_dir"
 
 
+def _shown_path(path: Path) -> str:
+    """``path`` relative to the working directory (the repository root) when inside it, else absolute."""
+    resolved = path.resolve()
+    return str(resolved.relative_to(Path.cwd())) if resolved.is_relative_to(Path.cwd()) else str(resolved)
+
+
 def run(cfg: DictConfig, output_dir: Path) -> dict:
     """Run the composed config's stage; returns the stage's summary. The stage's output directory is
     this process's alone for the run (srmpc.output_lock): a second run into it is refused before the
@@ -87,6 +93,7 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
         tracking.enabled, tracking.uri, tracking.artifact_location, tracking.experiment_name, run_name,
         OmegaConf.to_container(cfg, resolve=True), config_yaml,
     ) as active_run:
+        active_run.set_tags({"output_dir": _shown_path(stage_dir)})  # pipelines/mlflow_import.py keys runs by it
         if config.stage is Stage.evaluate:
             from srmpc.stages.evaluate import run_evaluation
 
