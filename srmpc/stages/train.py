@@ -11,8 +11,6 @@ A run writes only into a directory it owns: one without training results, or one
 :data:`RESUMABLE_OVERRIDES`); there it resumes from ``last.pt`` or, without one, starts over. A
 directory with another config, or with results but no ``config.yaml``, is refused before anything is
 written (:func:`claim_training_dir`), so committed results are never overwritten by a smoke run.
-Two runs never share the directory at once: ``python -m srmpc`` holds its lock for the run's lifetime
-(srmpc/output_lock.py) and refuses a second run before this module sees it.
 """
 
 from __future__ import annotations
