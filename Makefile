@@ -19,12 +19,14 @@ install: $(STAMP)
 ## figures, videos), then the smoke experiment; always ends by printing results/table.md.
 ## Committed results make `dvc repro` a no-op; `make reproduce FORCE=1` runs `dvc repro --force` (every stage).
 ## Every stage's MLflow run is a child of one parent run (pipelines/pipeline_run.py), which gets the table,
-## figures and videos as artifacts.
+## figures and videos as artifacts; then every evaluation and training result in dvc.lock that MLflow lacks
+## is imported as a child run (pipelines/mlflow_import.py), so a fresh clone's MLflow holds them all.
 FORCE ?=
 reproduce: install
 	@parent=$$(python pipelines/pipeline_run.py start --name "make reproduce$(if $(FORCE), FORCE=1)") \
 	  && echo "MLflow parent run $$parent (make ui)" || parent=""; \
 	SRMPC_PARENT_RUN_ID=$$parent dvc repro $(if $(FORCE),--force); status=$$?; \
+	[ -z "$$parent" ] || python pipelines/pipeline_run.py import --parent $$parent || status=$$?; \
 	[ -z "$$parent" ] || python pipelines/pipeline_run.py finish $$parent --status $$status; \
 	if [ $$status -eq 0 ]; then python -m srmpc +experiment=smoke || status=$$?; fi; \
 	echo; echo "== results/table.md =="; cat results/table.md; \

@@ -2,6 +2,7 @@
 
     python pipelines/pipeline_run.py start [--name NAME]        # prints the new run's id
     python pipelines/pipeline_run.py finish RUN_ID [--status N]  # logs results, ends the run
+    python pipelines/pipeline_run.py import [--parent RUN_ID]  # dvc.lock's results as (child) runs
     python pipelines/pipeline_run.py url [--base http://127.0.0.1:5000]   # the UI's runs table
 
 ``make reproduce`` starts the parent, runs ``dvc repro`` with ``SRMPC_PARENT_RUN_ID`` set to its id (every
@@ -9,6 +10,8 @@
 and finishes it with ``dvc repro``'s exit status: 0 ends it FINISHED, anything else FAILED. ``finish``
 logs as the parent's artifacts what exists of the paper's table (``table/``), the figures
 (``figures/``), the episode videos (``videos/``) and the training summary (``training/``).
+Between the two, ``import --parent RUN_ID`` logs every evaluation and training result that ``dvc.lock`` records as
+a child run, once per stage hash (pipelines/mlflow_import.py), so a fresh clone's MLflow holds them all.
 The tracking store and experiment are the ones ``python -m srmpc`` uses (``conf/tracking``), with
 ``tracking.*`` overrides passed after ``--``.
 """
@@ -23,7 +26,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from srmpc.config.compose import compose_config, to_objects  # noqa: E402
-from srmpc.tracking import ensure_experiment, finish_parent_run, runs_table_url, start_parent_run  # noqa: E402
+from srmpc.tracking import (  # noqa: E402
+    TrackingServerUnreachable,
+    check_tracking_server,
+    ensure_experiment,
+    finish_parent_run,
+    runs_table_url,
+    start_parent_run,
+)
 
 ARTIFACTS = (  # (artifact folder of the parent run, local file or folder)
     ("table", ROOT / "results" / "table.md"),
@@ -43,14 +53,30 @@ def main() -> None:
     finish = commands.add_parser("finish", help="log the results as artifacts and end the run")
     finish.add_argument("run_id")
     finish.add_argument("--status", type=int, default=0, help="exit status of what ran under the parent")
+    imports = commands.add_parser("import", help="log dvc.lock's evaluation and training results as runs")
+    imports.add_argument("--parent", default=None, help="the parent run's id (default: the runs stand alone)")
     url = commands.add_parser("url", help="print the UI's runs table of the experiment, with the paper's metrics")
     url.add_argument("--base", default="http://127.0.0.1:5000", help="where the UI is served")
     args, overrides = parser.parse_known_args()
     overrides = [o for o in overrides if o != "--"]
     tracking = to_objects(compose_config([f"tracking.{o.removeprefix('tracking.')}" for o in overrides])).tracking
+    try:
+        check_tracking_server(tracking.uri)
+    except TrackingServerUnreachable as error:
+        print(f"pipeline_run: error: {error}", file=sys.stderr)
+        sys.exit(2)
     if args.command == "start":
         print(start_parent_run(tracking.uri, tracking.experiment_name, tracking.artifact_location, args.name,
                                {"stage": "pipeline"}))
+    elif args.command == "import":
+        import mlflow
+        from mlflow_import import import_results
+
+        client = mlflow.MlflowClient(tracking_uri=tracking.uri)
+        experiment_id = ensure_experiment(client, tracking.experiment_name, tracking.artifact_location)
+        counts = import_results(client, experiment_id, args.parent)
+        print("MLflow: {imported} results imported from dvc.lock, {skipped} already there, "
+              "{superseded} earlier runs superseded".format(**counts))
     elif args.command == "finish":
         finish_parent_run(tracking.uri, args.run_id, ARTIFACTS, succeeded=args.status == 0)
     else:

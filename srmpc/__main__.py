@@ -8,7 +8,9 @@ Examples::
     python -m srmpc stage=train agent=ppo_lsi   # train PPO-L-SI (agent=ppo: the baseline)
 
 Config errors (wrong type, unknown key, invalid choice, invalid value) exit with status 2 and one
-line naming the key and the value (an output directory that cannot be created included); any other
+line naming the key and the value (an output directory that cannot be created included), and so does
+a run whose output directory another run is using (srmpc.output_lock: it names the holder's pid) or
+whose HTTP ``tracking.uri`` does not answer within 5 s (srmpc.tracking.check_tracking_server); any other
 file that cannot be read or written (a corrupted policy.pt) exits with status 1 and one line naming
 the path. SIGTERM ends the run cleanly: the MLflow run is marked FAILED and finished episodes
 (evaluation) or the last completed iteration (training) stay on disk for a resume; after a SIGKILL the
@@ -28,7 +30,8 @@ from omegaconf import DictConfig, OmegaConf
 from srmpc.config.compose import ConfigError, compose_config, to_objects
 from srmpc.config.schema import Config, Stage, register_schema
 from srmpc.errors import FileFault, describe_file_fault
-from srmpc.tracking import tracked_run
+from srmpc.output_lock import OutputDirectoryBusy, OutputDirectoryUnwritable, exclusive_output_dir
+from srmpc.tracking import TrackingServerUnreachable, check_tracking_server, tracked_run
 
 EXIT_CONFIG_ERROR = 2
 EXIT_RUN_ERROR = 1
@@ -39,12 +42,35 @@ def _fail(message: str) -> None:
     sys.exit(EXIT_CONFIG_ERROR)
 
 
+def _refuse(error: Exception) -> None:
+    """A run that cannot start (another run's output directory, a tracking server that does not answer)."""
+    print(f"srmpc: error: {error}", file=sys.stderr)
+    sys.exit(EXIT_CONFIG_ERROR)
+
+
 def _raise_on_sigterm(signum, frame) -> None:
     raise SystemExit(128 + signum)
 
 
+def stage_output_dir(config: Config, hydra_dir: Path) -> tuple[Path, str]:
+    """(the directory the stage writes its results into, the config key that names it)."""
+    if config.stage is Stage.train:
+        from srmpc.stages.train import training_dir
+
+        return training_dir(config), "agent.output_dir"
+    return (Path(config.evaluation.output_dir) if config.evaluation.output_dir else hydra_dir), "evaluation.output_dir"
+
+
+def _shown_path(path: Path) -> str:
+    """``path`` relative to the working directory (the repository root) when inside it, else absolute."""
+    resolved = path.resolve()
+    return str(resolved.relative_to(Path.cwd())) if resolved.is_relative_to(Path.cwd()) else str(resolved)
+
+
 def run(cfg: DictConfig, output_dir: Path) -> dict:
-    """Run the composed config's stage; returns the stage's summary."""
+    """Run the composed config's stage; returns the stage's summary. The stage's output directory is
+    this process's alone for the run (srmpc.output_lock): a second run into it is refused before the
+    MLflow run starts."""
     config: Config = to_objects(cfg)
     config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
     tracking = config.tracking
@@ -59,16 +85,19 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
 
     # A sweep's jobs, or trainings side by side (pipelines/train_runs.py), start together: the first
     # creates the MLflow store (and, in a sweep, the experiment) under a lock; two creators would collide.
+    if tracking.enabled:
+        check_tracking_server(tracking.uri)  # before the output directory is touched
     prepare_tracking_store(tracking, ensure_experiment=in_multirun())
-    with tracked_run(
+    stage_dir, stage_dir_key = stage_output_dir(config, output_dir)
+    with exclusive_output_dir(stage_dir, stage_dir_key), tracked_run(
         tracking.enabled, tracking.uri, tracking.artifact_location, tracking.experiment_name, run_name,
         OmegaConf.to_container(cfg, resolve=True), config_yaml,
     ) as active_run:
+        active_run.set_tags({"output_dir": _shown_path(stage_dir)})  # pipelines/mlflow_import.py keys runs by it
         if config.stage is Stage.evaluate:
             from srmpc.stages.evaluate import run_evaluation
 
-            eval_dir = Path(config.evaluation.output_dir) if config.evaluation.output_dir else output_dir
-            return run_evaluation(config, config_yaml, eval_dir, active_run)
+            return run_evaluation(config, config_yaml, stage_dir, active_run)
         if config.stage is Stage.train:
             from srmpc.stages.train import run_training
 
@@ -84,8 +113,10 @@ def hydra_main(cfg: DictConfig) -> None:
     signal.signal(signal.SIGTERM, _raise_on_sigterm)
     try:
         summary = run(cfg, Path(HydraConfig.get().runtime.output_dir))
-    except ConfigError as error:
+    except (ConfigError, OutputDirectoryUnwritable) as error:
         _fail(str(error))
+    except (OutputDirectoryBusy, TrackingServerUnreachable) as error:  # refused before anything is written
+        _refuse(error)
     except (FileFault, OSError) as error:  # an unreadable policy.pt, an unwritable output directory
         print(f"srmpc: error: {describe_file_fault(error)}", file=sys.stderr)
         sys.exit(EXIT_RUN_ERROR)
@@ -105,9 +136,14 @@ def main() -> None:
     overrides = _plain_overrides(sys.argv[1:])
     if overrides is not None:
         try:
-            compose_config(overrides)
+            tracking = compose_config(overrides).tracking
         except ConfigError as error:
             _fail(str(error))
+        if tracking.enabled:  # before Hydra creates its run directory
+            try:
+                check_tracking_server(tracking.uri)
+            except TrackingServerUnreachable as error:
+                _refuse(error)
     from srmpc.sweep import sweep_jobs
 
     for number, job in enumerate(sweep_jobs(sys.argv[1:])):  # -m: every job's config, before any job starts

@@ -47,6 +47,44 @@ EXPERIMENT_TAGS = {
 a saved view (the UI's "Views" menu; MLflow 3.17's envelope)."""
 
 
+SERVER_CHECK_TIMEOUT_S = 5.0
+"""How long :func:`check_tracking_server` waits for an HTTP tracking server's ``/health``."""
+
+
+class TrackingServerUnreachable(RuntimeError):
+    """``tracking.uri`` names an HTTP server that does not answer; the message is one line naming it."""
+
+
+def check_tracking_server(uri: str, timeout_s: float = SERVER_CHECK_TIMEOUT_S) -> None:
+    """For an ``http(s)://`` ``tracking.uri``, one ``GET <uri>/health`` (what ``mlflow server`` answers
+    200 to) within ``timeout_s``; raise :class:`TrackingServerUnreachable` unless it answers 200. Other
+    stores (SQLite, a local folder) are not checked.
+
+    MLflow's own client retries a refused connection with backoff for minutes, printing a urllib3
+    WARNING per attempt, then fails with a traceback; a run checks once, before it writes anything."""
+    import urllib.error
+    import urllib.parse
+    import urllib.request
+
+    if urllib.parse.urlsplit(uri).scheme.lower() not in ("http", "https"):
+        return
+    url = uri.rstrip("/") + "/health"
+    try:
+        with urllib.request.urlopen(url, timeout=timeout_s) as response:
+            if response.status == 200:
+                return
+            reason = f"HTTP {response.status}"
+    except urllib.error.HTTPError as error:
+        reason = f"HTTP {error.code} {error.reason}"
+    except urllib.error.URLError as error:
+        reason = str(getattr(error.reason, "strerror", None) or error.reason)
+    except (OSError, ValueError) as error:  # a timeout, a malformed URI (bad port)
+        reason = str(error) or type(error).__name__
+    raise TrackingServerUnreachable(
+        f"tracking.uri={uri}: no MLflow server answers (GET {url} within {timeout_s:g} s: {reason}); "
+        "start it, or run without tracking: tracking.enabled=false")
+
+
 def runs_table_url(base: str, experiment_id: str) -> str:
     """The MLflow UI's runs table of an experiment with the paper's metrics as columns. MLflow 3.17's UI
     picks its GenAI or model-training view by a switch of its own (``workflowType``), not by the

@@ -2,7 +2,7 @@
 
 Floors, from the ground up, in the order data flows through them (README, "Layout"):
 
-0. ground: ``errors``, ``value_checks``, ``confidence_intervals``, ``metrics``, the package root
+0. ground: ``errors``, ``value_checks``, ``confidence_intervals``, ``metrics``, ``output_lock``, the package root
 1. ``scenario``: the highway scenario (parameters, reward, safety index, observation, highway-env env)
 2. ``sim``: the numba twin of the scenario
 3. ``agents`` (PPO, PPO-L-SI) and ``mpc`` (the LTV-MPC QP and planner), side by side: neither imports the other
@@ -24,7 +24,7 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "srmpc"
 
 FLOOR = {
-    "__init__": 0, "errors": 0, "value_checks": 0, "confidence_intervals": 0, "metrics": 0,
+    "__init__": 0, "errors": 0, "value_checks": 0, "confidence_intervals": 0, "metrics": 0, "output_lock": 0,
     "scenario": 1,
     "sim": 2,
     "agents": 3, "mpc": 3,
