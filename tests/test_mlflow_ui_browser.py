@@ -8,6 +8,7 @@ The screenshot goes to ``$SRMPC_UI_SCREENSHOT`` if set, else into the test's tem
 
 import asyncio
 import base64
+import contextlib
 import json
 import os
 import re
@@ -38,6 +39,37 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
+@contextlib.contextmanager
+def _serve(uri: str, artifacts: str, log_path: Path):
+    """``mlflow server`` on a free loopback port over the store ``uri``; yields its base URL."""
+    port = _free_port()
+    log = log_path.open("w")
+    server = subprocess.Popen(
+        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--default-artifact-root", artifacts,
+         "--host", "127.0.0.1", "--port", str(port), "--workers", "1"],
+        stdout=log, stderr=subprocess.STDOUT, start_new_session=True)  # its own group: stopped with its workers
+    try:
+        deadline = time.monotonic() + 900  # ~20 s on an idle machine; minutes on a loaded one
+        while True:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=5) as response:
+                    if response.status == 200:
+                        break
+            except OSError:
+                pass
+            if server.poll() is not None or time.monotonic() > deadline:
+                pytest.fail(f"mlflow server did not answer: {log_path.read_text()[-2000:]}")
+            time.sleep(2)
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        try:
+            server.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+        log.close()
+
+
 @pytest.fixture
 def mlflow_ui(tmp_path, monkeypatch):
     """``mlflow server`` on a free port over a temporary SQLite store holding the two runs; yields the
@@ -53,32 +85,8 @@ def mlflow_ui(tmp_path, monkeypatch):
 
     experiment_id = mlflow.MlflowClient(uri).get_experiment_by_name("srmpc").experiment_id
     mlflow.set_tracking_uri(None)
-    port = _free_port()
-    log = (tmp_path / "server.log").open("w")
-    server = subprocess.Popen(
-        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--default-artifact-root", artifacts,
-         "--host", "127.0.0.1", "--port", str(port), "--workers", "1"],
-        stdout=log, stderr=subprocess.STDOUT, start_new_session=True)  # its own group: stopped with its workers
-    try:
-        deadline = time.monotonic() + 900  # ~20 s on an idle machine; minutes on a loaded one
-        while True:
-            try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=5) as response:
-                    if response.status == 200:
-                        break
-            except OSError:
-                pass
-            if server.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"mlflow server did not answer: {(tmp_path / 'server.log').read_text()[-2000:]}")
-            time.sleep(2)
-        yield runs_table_url(f"http://127.0.0.1:{port}", experiment_id)
-    finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        try:
-            server.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-        log.close()
+    with _serve(uri, artifacts, tmp_path / "server.log") as base:
+        yield runs_table_url(base, experiment_id)
 
 
 SELECT_COLUMNS_JS = """(() => {
@@ -175,3 +183,132 @@ def test_runs_table_shows_srmpc_and_ltv_mpc_with_their_j_c(mlflow_ui, tmp_path):
         assert row, f"no row for {name}"
         cells = re.findall(rf'row-index="{row.group(1)}"(?:(?!row-index=).)*', dom, re.S)
         assert any(f">{j_c}<" in cell for cell in cells), f"J_c {j_c} of {name} not shown in its row"
+
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPAND_AND_SELECT_JS = """(() => {
+  // As above, and expand the pipeline's parent run: the imported runs are its children, collapsed by default.
+  let changed = 0;
+  for (let i = 0; i < localStorage.length; i++) {
+    const key = localStorage.key(i);
+    let state;
+    try { state = JSON.parse(localStorage.getItem(key)); } catch (e) { continue; }
+    if (state && Array.isArray(state.selectedColumns)) {
+      state.selectedColumns = COLUMNS;
+      state.runsExpanded = {[PARENT]: true};
+      localStorage.setItem(key, JSON.stringify(state));
+      changed++;
+    }
+  }
+  return changed;
+})()"""
+
+CHARTS_JS = """[...document.querySelectorAll('.js-plotly-plot')].map(plot => {
+  let card = plot;  // the chart's card: the nearest ancestor naming the series, "<run> (<metric>)"
+  for (let i = 0; i < 8 && card.parentElement && !(card.innerText || '').includes('('); i++) card = card.parentElement;
+  return {card: (card.innerText || '').slice(-200),
+          xticks: [...plot.querySelectorAll('.xtick text')].map(t => t.textContent),
+          vertices: [...plot.querySelectorAll('.scatterlayer path.js-line')].map(
+            line => (line.getAttribute('d').match(/[ML]/g) || []).length)};
+})"""
+"""Each plotly chart of a run's metrics page: its card's text, its x tick labels, the vertices of its lines."""
+
+
+def _pipeline_run(*args: str, uri: str, artifacts: str) -> str:
+    env = {k: v for k, v in os.environ.items() if k != PARENT_RUN_ENV}
+    done = subprocess.run([sys.executable, str(ROOT / "pipelines" / "pipeline_run.py"), *args, "--",
+                           f"tracking.uri={uri}", f"tracking.artifact_location={artifacts}"],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout.strip()
+
+
+def _ui_number(value: float) -> str:
+    """How the runs table writes a metric (JavaScript's number to string, for these plain values)."""
+    return str(int(value)) if float(value).is_integer() else repr(float(value))
+
+
+@pytest.fixture
+def fresh_clone_ui(tmp_path):
+    """What ``make reproduce`` does on a fresh clone with every stage up to date, into a temporary store:
+    ``pipeline_run.py start``, then ``import --parent`` (twice: the second imports nothing); then the UI.
+    Yields (base URL, experiment id, parent run id, client)."""
+    sys.path.insert(0, str(ROOT / "pipelines"))
+    import mlflow
+    import yaml
+    from mlflow_import import results_of
+
+    uri, artifacts = f"sqlite:///{tmp_path / 'mlflow.db'}", str(tmp_path / "mlruns")
+    expected = len(results_of(yaml.safe_load((ROOT / "dvc.lock").read_text())))
+    parent = _pipeline_run("start", "--name", "make reproduce", uri=uri, artifacts=artifacts).splitlines()[-1]
+    first = _pipeline_run("import", "--parent", parent, uri=uri, artifacts=artifacts)
+    assert f"{expected} results imported from dvc.lock, 0 already there" in first, first
+    second = _pipeline_run("import", "--parent", parent, uri=uri, artifacts=artifacts)
+    assert f"0 results imported from dvc.lock, {expected} already there" in second, second
+    client = mlflow.MlflowClient(uri)
+    experiment_id = client.get_experiment_by_name("srmpc").experiment_id
+    assert len(client.search_runs([experiment_id], max_results=1000)) == expected + 1
+    with _serve(uri, artifacts, tmp_path / "server.log") as base:
+        yield base, experiment_id, parent, client
+
+
+@pytest.mark.timeout(3600)
+def test_fresh_clone_runs_table_shows_the_tables_methods_with_their_j_c_and_a_training_chart(fresh_clone_ui, tmp_path):
+    if CHROMIUM is None:
+        pytest.skip("Chromium is not installed; install it from Debian's packages: apt-get install chromium")
+    from tests.chromium_devtools import chromium_page
+
+    base, experiment_id, parent, client = fresh_clone_ui
+    table = json.loads((ROOT / "results" / "table.json").read_text())
+    rows = {}  # run name -> the J_c the paper's table gives its method and traffic
+    for traffic, methods in table.items():
+        for method, summary in methods.items():
+            directory = f"results/evaluation/twin/{method}_{traffic}"
+            runs = client.search_runs([experiment_id], filter_string=f"tags.output_dir = '{directory}'")
+            assert len(runs) == 1, f"{directory}: {len(runs)} runs"
+            assert runs[0].data.tags["method"] == method and runs[0].data.tags["traffic"] == traffic
+            assert runs[0].data.tags["mlflow.parentRunId"] == parent
+            rows[runs[0].info.run_name] = summary[J_C]
+    assert len(rows) >= 6, rows
+    (training,) = client.search_runs([experiment_id],
+                                     filter_string="tags.output_dir = 'results/training/ppo_lsi/seed_0'")
+    shots = Path(os.environ.get("SRMPC_UI_SCREENSHOT_DIR", tmp_path))
+    shots.mkdir(parents=True, exist_ok=True)
+
+    async def browse():
+        async with chromium_page(tmp_path / "chromium", deadline_s=900, window="1800,2600") as page:
+            names = " && ".join(f"document.body.innerText.includes({json.dumps(n)})" for n in rows)
+            await page.call("Page.navigate", url=runs_table_url(base, experiment_id))
+            await page.wait_for("document.body && document.body.innerText.includes('make reproduce')", "the parent")
+            columns = json.dumps([c for c in RUNS_TABLE_COLUMNS if c.startswith("metrics.")])
+            state = EXPAND_AND_SELECT_JS.replace("COLUMNS", columns).replace("PARENT", json.dumps(parent))
+            assert await page.evaluate(state) >= 1, "no runs-table state"
+            await page.call("Page.reload")
+            await page.wait_for(f"document.body && {names} && document.body.innerText.includes({json.dumps(J_C)})",
+                                "the imported runs and the J_c column")
+            await asyncio.sleep(3)  # let the grid settle
+            shot = await page.call("Page.captureScreenshot", format="png")
+            (shots / "mlflow_fresh_clone_runs.png").write_bytes(base64.b64decode(shot["data"]))
+            dom = await page.evaluate("document.documentElement.outerHTML")
+
+            await page.call("Page.navigate", url=f"{base}/#/experiments/{experiment_id}/runs/"
+                                                 f"{training.info.run_id}/model-metrics")
+            await page.wait_for("document.querySelectorAll('.js-plotly-plot .scatterlayer path.js-line').length > 0 "
+                                "&& document.body.innerText.includes('(episode/return)')", "the training charts")
+            await asyncio.sleep(3)
+            shot = await page.call("Page.captureScreenshot", format="png")
+            (shots / "mlflow_fresh_clone_training.png").write_bytes(base64.b64decode(shot["data"]))
+            return dom, await page.evaluate(CHARTS_JS)
+
+    dom, charts = asyncio.run(browse())
+    for name, j_c in rows.items():  # each run's row (ag-grid's row-index, shared by its cells) holds its J_c
+        row = re.search(rf'row-index="(\d+)"(?:(?!row-index=).)*?>{re.escape(name)}<', dom, re.S)
+        assert row, f"no row for {name}"
+        cells = "".join(re.findall(rf'row-index="{row.group(1)}"(?:(?!row-index=).)*', dom, re.S))
+        shown = re.findall(rf'col-id="metrics.`{J_C}`"[^>]*>(?:<[^>]*>)*([^<]*)<', cells)
+        assert shown == [_ui_number(j_c)], f"{name}: J_c shown {shown}, the table's {j_c}"
+
+    chart = [c for c in charts if c["card"].endswith(f"{training.info.run_name} (episode/return)")]
+    assert len(chart) == 1, charts
+    assert max(chart[0]["vertices"]) > 100, chart  # the curve over 610 iterations, not a point or a bar
+    assert {"5M", "10M", "15M"} <= set(chart[0]["xticks"]), chart  # against env steps (20M), not iterations
