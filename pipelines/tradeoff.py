@@ -1,0 +1,357 @@
+"""The safety-speed trade-off: J_c against mean v_x for LTV-MPC and SRMPC over planner settings.
+
+Every point is one 1000-episode evaluation on the table's seeds (episode i from seed i), so any two
+points are paired episode by episode. The planner-based methods are curves over the planner settings they
+share at each grid point (the longitudinal safety margin [m], and the speed weight of
+``planner.state_weights`` where the sweep varies it); PPO-L-SI, PPO and lane keeping have no planner and
+are single points; the paper's three published rows are hollow markers.
+
+Reads every evaluation directory under ``results/evaluation/tradeoff/`` (each names its own settings in
+its ``config.yaml``) and the table's own evaluations (``results/evaluation/twin/``: the 8 m points and the
+single points). Writes:
+
+- ``results/tradeoff.json``: ``[traffic][method]`` is a list of points, each with its ``settings``,
+  ``episodes``, ``mean_event_cost``, ``mean_vx``, ``mean_return`` (and the other keys of ``table.json``)
+  with their ``_ci95``; ``[traffic]["dominance"]``, ``["at_policy_speed"]`` and ``["paper_operating_point"]``;
+- ``results/tradeoff.md``: the same as tables, with the verdicts in words;
+- ``results/figures/tradeoff.png``: one panel per traffic level, 95% CIs on both axes.
+
+Dominance: SRMPC point s dominates LTV-MPC point l when s is faster and safer. It is *shown* when the
+paired 95% bootstrap CIs of v_x(s) - v_x(l) lie above 0 and of J_c(s) - J_c(l) lie below 0; it holds *by
+point estimate* when only the means say so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+from paper_table import METHODS, PAPER, method_row, write_outputs
+
+from srmpc.confidence_intervals import paired_differences
+
+TWIN = Path("results/evaluation/twin")
+SWEEP = Path("results/evaluation/tradeoff")
+TRAFFIC = ("light", "dense")
+CURVES = {"ltv_mpc": "LTV-MPC", "srmpc": "SRMPC (Algorithm 1)", "srmpc_track_rollout": "SRMPC, tracking the rollout"}
+SINGLE = ("ppo_lsi", "ppo", "lane_keeping")
+SRMPC_CURVES = ("srmpc", "srmpc_track_rollout")
+TABLE_KEYS = ("episodes", "mean_return", "mean_return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps",
+              "mean_vx")
+
+
+def method_of(config: dict) -> str:
+    """The curve a config belongs to: ``ltv_mpc``, ``srmpc`` or ``srmpc_<variant>``."""
+    controller = config["evaluation"]["controller"]
+    if controller != "srmpc":
+        return controller
+    variant = config["srmpc"].get("variant", "paper")
+    return "srmpc" if variant == "paper" else f"srmpc_{variant}"
+
+
+def settings_of(config: dict) -> dict:
+    """The planner settings a point is plotted by: margin [m] and the speed weight of state_weights."""
+    planner = config["planner"]
+    return {"safety_margin_longitudinal_m": float(planner["safety_margin_longitudinal_m"]),
+            "speed_weight": float(planner["state_weights"][3]),
+            "x_weight": float(planner["state_weights"][0])}
+
+
+def point(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame, str, str]:
+    """One evaluation as a trade-off point: (point, its episodes, method, traffic)."""
+    config = yaml.safe_load((directory / "config.yaml").read_text())
+    row, episodes = method_row(directory, resamples, seed)
+    keep = {k: v for k, v in row.items() if k.removesuffix("_ci95") in TABLE_KEYS}
+    return ({"settings": settings_of(config), "directory": str(directory), **keep}, episodes, method_of(config),
+            config["scenario"]["traffic"])
+
+
+def collect(resamples: int, seed: int) -> tuple[dict, dict]:
+    """points[traffic][method] (sorted by v_x) and episodes[directory]."""
+    points: dict = {t: {m: [] for m in (*CURVES, *SINGLE)} for t in TRAFFIC}
+    episodes: dict[str, pd.DataFrame] = {}
+    directories = sorted(p.parent for p in (*SWEEP.glob("*/summary.json"), *TWIN.glob("*/summary.json")))
+    for t in TRAFFIC:
+        for m in ("ltv_mpc", "srmpc", "srmpc_track_rollout", *SINGLE):
+            if not (TWIN / f"{m}_{t}" / "summary.json").is_file():
+                raise SystemExit(f"tradeoff: {TWIN / f'{m}_{t}'}: no summary.json (run its DVC stage first)")
+    for directory in directories:  # every twin evaluation of a curve's method or a single point
+        p, e, method, traffic = point(directory, resamples, seed)
+        if method not in points[traffic]:
+            continue
+        if method in SINGLE:
+            p.pop("settings")
+        points[traffic][method].append(p)
+        episodes[p["directory"]] = e
+    for methods in points.values():
+        for curve in methods.values():
+            curve.sort(key=lambda q: q["mean_vx"])
+    return points, episodes
+
+
+def label(p: dict) -> str:
+    s = p.get("settings")
+    if not s:
+        return "-"
+    text = f"{s['safety_margin_longitudinal_m']:g} m"
+    if s["speed_weight"] != 0.5:
+        text += f", w_v {s['speed_weight']:g}"
+    if s["x_weight"] != 0.0:
+        text += f", w_x {s['x_weight']:g}"
+    return text
+
+
+def dominance(methods: dict, episodes: dict, resamples: int, seed: int) -> list[dict]:
+    """For each LTV-MPC point: the SRMPC points faster and safer, with paired differences."""
+    verdicts = []
+    for ltv in methods["ltv_mpc"]:
+        candidates = []
+        for curve in SRMPC_CURVES:
+            for s in methods[curve]:
+                d = paired_differences(episodes[s["directory"]], episodes[ltv["directory"]], resamples, seed)
+                faster, safer = d["mean_vx"] > 0, d["mean_event_cost"] < 0
+                shown = d["mean_vx_ci95"][0] > 0 and d["mean_event_cost_ci95"][1] < 0
+                candidates.append({"method": curve, "settings": s["settings"], "paired_difference": d,
+                                   "dominates_by_point_estimate": bool(faster and safer),
+                                   "dominance_shown": bool(shown)})
+        verdicts.append({"ltv_mpc": {"settings": ltv["settings"], "mean_vx": ltv["mean_vx"],
+                                     "mean_event_cost": ltv["mean_event_cost"]},
+                         "dominated_by_point_estimate": any(c["dominates_by_point_estimate"] for c in candidates),
+                         "dominance_shown": any(c["dominance_shown"] for c in candidates),
+                         "srmpc_points": candidates})
+    return verdicts
+
+
+def at_speed(curve: list[dict], vx: float) -> dict:
+    """J_c of a curve at speed ``vx``: linear between the two points around it, else the nearest point."""
+    speeds = [p["mean_vx"] for p in curve]
+    if speeds and speeds[0] <= vx <= speeds[-1] and len(curve) > 1:
+        i = max(1, int(np.searchsorted(speeds, vx)))
+        a, b = curve[i - 1], curve[i]
+        w = 0.0 if b["mean_vx"] == a["mean_vx"] else (vx - a["mean_vx"]) / (b["mean_vx"] - a["mean_vx"])
+        return {"how": "interpolated", "between": [a["settings"], b["settings"]],
+                "mean_event_cost": a["mean_event_cost"] + w * (b["mean_event_cost"] - a["mean_event_cost"])}
+    nearest = min(curve, key=lambda p: abs(p["mean_vx"] - vx))
+    return {"how": "nearest point (outside the curve's speed range)", "settings": nearest["settings"],
+            "mean_vx": nearest["mean_vx"], "mean_event_cost": nearest["mean_event_cost"],
+            "mean_event_cost_ci95": nearest["mean_event_cost_ci95"]}
+
+
+def paper_operating_point(traffic: str, methods: dict, episodes: dict, resamples: int, seed: int) -> dict:
+    """The LTV-MPC point nearest the paper's LTV-MPC speed, and SRMPC at the same settings beside it."""
+    paper_vx = PAPER[(traffic, "ltv_mpc")][5]
+    ltv = min(methods["ltv_mpc"], key=lambda p: abs(p["mean_vx"] - paper_vx))
+    same = [p for p in methods["srmpc"] if p["settings"] == ltv["settings"]]
+    result = {"paper_ltv_mpc_vx": paper_vx, "ltv_mpc": ltv, "srmpc": same[0] if same else None,
+              "paper_reduction": 1 - PAPER[(traffic, "srmpc")][2] / PAPER[(traffic, "ltv_mpc")][2]}
+    if same:
+        s = same[0]
+        result["paired_difference"] = paired_differences(episodes[s["directory"]], episodes[ltv["directory"]],
+                                                         resamples, seed)
+        result["reduction"] = (1 - s["mean_event_cost"] / ltv["mean_event_cost"]) if ltv["mean_event_cost"] else None
+    return result
+
+
+CONFIRMATION = Path("results/evaluation/confirmation")
+TARGET = {"light": {"min_vx": 24.1, "max_event_cost": 0.006}, "dense": {"min_vx": 22.3, "max_event_cost": 0.036}}
+"""The issue's target: at least PPO-L-SI's speed (its table row), at no more than a tenth of its J_c."""
+STRETCH = {"light": {"min_vx": 24.63, "max_event_cost": 0.215}, "dense": {"min_vx": 24.47, "max_event_cost": 0.353}}
+"""Beat the paper's SRMPC row on both axes."""
+
+
+def confirmation(traffic: str, resamples: int, seed: int) -> dict | None:
+    """The recommended setting on fresh seeds (100000 + i), beside LTV-MPC at its planner settings and
+    PPO-L-SI on the same episodes; against the target and the stretch (strict on both axes)."""
+    names = ("srmpc_recommended", "ltv_mpc_margin_1m", "ppo_lsi")
+    if not all((CONFIRMATION / f"{n}_{traffic}" / "summary.json").is_file() for n in names):
+        return None
+    rows, frames = {}, {}
+    for name in names:
+        p, frames[name], _, _ = point(CONFIRMATION / f"{name}_{traffic}", resamples, seed)
+        rows[name] = p
+    s, policy = rows["srmpc_recommended"], rows["ppo_lsi"]
+    own_target = {"min_vx": policy["mean_vx"], "max_event_cost": policy["mean_event_cost"] / 10}
+
+    def meets(goal: dict) -> bool:
+        return bool(s["mean_vx"] >= goal["min_vx"] and s["mean_event_cost"] <= goal["max_event_cost"])
+
+    return {**rows, "seed": 100000,
+            "paired_differences": {other: paired_differences(frames["srmpc_recommended"], frames[other],
+                                                             resamples, seed)
+                                   for other in ("ltv_mpc_margin_1m", "ppo_lsi")},
+            "target": {**TARGET[traffic], "meets": meets(TARGET[traffic])},
+            "target_on_these_seeds": {**own_target, "meets": meets(own_target)},
+            "stretch": {**STRETCH[traffic],
+                        "meets": bool(s["mean_vx"] > STRETCH[traffic]["min_vx"]
+                                      and s["mean_event_cost"] < STRETCH[traffic]["max_event_cost"])}}
+
+
+def ci(p: dict, key: str, digits: int) -> str:
+    low, high = p[f"{key}_ci95"]
+    return f"{p[key]:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def why(p: dict, goal: dict) -> str:
+    """Each axis of a goal against point ``p``: ``J_c 0.001 ≤ 0.006; v_x 23.98 < 24.10``."""
+    cost, vx = p["mean_event_cost"], p["mean_vx"]
+    return (f"J_c {cost:.3f} {'≤' if cost <= goal['max_event_cost'] else '>'} {goal['max_event_cost']:.4g}; "
+            f"v_x {vx:.2f} {'≥' if vx >= goal['min_vx'] else '<'} {goal['min_vx']:.2f}")
+
+
+def markdown(report: dict) -> str:
+    lines = ["# The safety-speed trade-off: LTV-MPC and SRMPC over planner settings", "",
+             "Generated by `pipelines/tradeoff.py` (DVC stage `tradeoff`). Each row: 1000 episodes on the table's",
+             "seeds; LTV-MPC and SRMPC share the planner settings of a row. 95% CIs: Wilson (J_c), bootstrap",
+             "(v_x, J_r); paired differences: bootstrap over the same episodes.", ""]
+    for traffic in TRAFFIC:
+        r = report[traffic]
+        lines += [f"## {traffic.capitalize()} traffic", "",
+                  "| method | planner setting | J_c | v_x [m/s] | J_r |", "|---|---|---|---|---|"]
+        for method in (*CURVES, *SINGLE):
+            for p in r[method]:
+                name = CURVES.get(method) or METHODS[method]
+                lines.append(f"| {name} | {label(p)} | {ci(p, 'mean_event_cost', 3)} | {ci(p, 'mean_vx', 2)} | "
+                             f"{ci(p, 'mean_return', 0)} |")
+        for method in ("ppo_lsi", "ltv_mpc", "srmpc"):
+            values = PAPER[(traffic, method)]
+            lines.append(f"| {METHODS[method]} (paper) | - | {values[2]:.3f} | {values[5]:.2f} | {values[0]:.0f} |")
+        lines += ["", "**Dominance** (SRMPC faster *and* safer than an LTV-MPC point, paired):", ""]
+        for v in r["dominance"]:
+            best = [c for c in v["srmpc_points"] if c["dominates_by_point_estimate"]]
+            l_ = v["ltv_mpc"]
+            head = (f"- LTV-MPC at {label(l_)} (J_c {l_['mean_event_cost']:.3f}, v_x {l_['mean_vx']:.2f}): ")
+            if v["dominance_shown"]:
+                head += "dominated, shown by the paired CIs: by "
+            elif v["dominated_by_point_estimate"]:
+                head += "dominated by point estimate only (a paired CI crosses 0): by "
+            else:
+                lines.append(head + "**not dominated**: no SRMPC point is both faster and safer.")
+                continue
+            parts = []
+            same = [c for c in best if c["settings"] == l_["settings"]]  # at the LTV-MPC point's own setting
+            fastest = max(best, key=lambda c: c["paired_difference"]["mean_vx"])
+            shown = [c for c in best if c["dominance_shown"]]
+            head += f"{len(shown)} of {len(v['srmpc_points'])} SRMPC points (paired CIs), e.g. "
+            for c in [*same, *([fastest] if fastest not in same else [])]:
+                d = c["paired_difference"]
+                parts.append(f"{CURVES[c['method']]} at {label(c)} (Δv_x {d['mean_vx']:+.2f} "
+                             f"[{d['mean_vx_ci95'][0]:+.2f}, {d['mean_vx_ci95'][1]:+.2f}], ΔJ_c "
+                             f"{d['mean_event_cost']:+.3f} [{d['mean_event_cost_ci95'][0]:+.3f}, "
+                             f"{d['mean_event_cost_ci95'][1]:+.3f}])")
+            lines.append(head + "; ".join(parts) + ".")
+        policy = r["ppo_lsi"][0]
+        lines += ["", f"**At PPO-L-SI's speed** (v_x {policy['mean_vx']:.2f}, "
+                      f"J_c {ci(policy, 'mean_event_cost', 3)}):", ""]
+        for curve in SRMPC_CURVES:
+            a = r["at_policy_speed"][curve]
+            if a["how"] == "interpolated":
+                lines.append(f"- {CURVES[curve]}: J_c {a['mean_event_cost']:.3f} (interpolated between "
+                             f"{label({'settings': a['between'][0]})} and {label({'settings': a['between'][1]})}).")
+            else:
+                lines.append(f"- {CURVES[curve]}: the curve does not reach that speed; its fastest point "
+                             f"({label(a)}) drives {a['mean_vx']:.2f} m/s at J_c {a['mean_event_cost']:.3f}.")
+        o = r["paper_operating_point"]
+        lines += ["", f"**The paper's operating point** (its LTV-MPC drives at {o['paper_ltv_mpc_vx']:.2f} m/s): our "
+                  f"LTV-MPC comes closest at {label(o['ltv_mpc'])}, v_x {ci(o['ltv_mpc'], 'mean_vx', 2)}, "
+                  f"J_c {ci(o['ltv_mpc'], 'mean_event_cost', 3)}."]
+        if o["srmpc"] is not None and o.get("reduction") is not None:
+            d = o["paired_difference"]
+            lines.append(f"SRMPC at the same setting: J_c {ci(o['srmpc'], 'mean_event_cost', 3)}, v_x "
+                         f"{ci(o['srmpc'], 'mean_vx', 2)}; J_c reduced by {o['reduction']:.0%} (paper: "
+                         f"{o['paper_reduction']:.0%}), paired ΔJ_c {d['mean_event_cost']:+.3f} "
+                         f"[{d['mean_event_cost_ci95'][0]:+.3f}, {d['mean_event_cost_ci95'][1]:+.3f}].")
+        c = r.get("confirmation")
+        if c is not None:
+            s, l_, policy = c["srmpc_recommended"], c["ltv_mpc_margin_1m"], c["ppo_lsi"]
+            lines += ["", "**The recommended setting, confirmed on fresh seeds** (`srmpc=track_rollout "
+                      "planner=margin_1m`; 1000 episodes from seed 100000, never used by the sweep):", "",
+                      "| method | J_c | v_x [m/s] | J_r |", "|---|---|---|---|",
+                      f"| SRMPC, recommended | {ci(s, 'mean_event_cost', 3)} | {ci(s, 'mean_vx', 2)} | "
+                      f"{ci(s, 'mean_return', 0)} |",
+                      f"| LTV-MPC, same planner | {ci(l_, 'mean_event_cost', 3)} | {ci(l_, 'mean_vx', 2)} | "
+                      f"{ci(l_, 'mean_return', 0)} |",
+                      f"| PPO-L-SI | {ci(policy, 'mean_event_cost', 3)} | {ci(policy, 'mean_vx', 2)} | "
+                      f"{ci(policy, 'mean_return', 0)} |", ""]
+            for other, name in (("ppo_lsi", "PPO-L-SI"), ("ltv_mpc_margin_1m", "LTV-MPC")):
+                d = c["paired_differences"][other]
+                lines.append(f"- SRMPC - {name}, paired: Δv_x {ci(d, 'mean_vx', 2)}, ΔJ_c "
+                             f"{ci(d, 'mean_event_cost', 3)}, ΔJ_r {ci(d, 'mean_return', 0)}.")
+            t, o, st = c["target"], c["target_on_these_seeds"], c["stretch"]
+
+            lines += [f"- Target (v_x ≥ {t['min_vx']}, J_c ≤ {t['max_event_cost']}): "
+                      f"**{'met' if t['meets'] else 'not met'}** ({why(s, t)}); against PPO-L-SI on these seeds: "
+                      f"**{'met' if o['meets'] else 'not met'}** ({why(s, o)}).",
+                      f"- Stretch, the paper's SRMPC row (v_x > {st['min_vx']}, J_c < {st['max_event_cost']}): "
+                      f"**{'met' if st['meets'] else 'not met'}** ({why(s, st)})."]
+        lines.append("")
+    return "\n".join(lines) + "\n"
+
+
+def figure(report: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {"ltv_mpc": "tab:blue", "srmpc": "tab:red", "srmpc_track_rollout": "tab:orange",
+              "ppo_lsi": "tab:green", "ppo": "tab:purple", "lane_keeping": "tab:gray"}
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    for ax, traffic in zip(axes, TRAFFIC, strict=True):
+        r = report[traffic]
+        for method in (*CURVES, *SINGLE):
+            pts = r[method]
+            x = np.array([p["mean_vx"] for p in pts])
+            y = np.array([p["mean_event_cost"] for p in pts])
+            xerr = np.abs(np.array([p["mean_vx_ci95"] for p in pts]).T - x)
+            yerr = np.abs(np.array([p["mean_event_cost_ci95"] for p in pts]).T - y)
+            name = CURVES.get(method) or METHODS[method]
+            ax.errorbar(x, y, xerr=xerr, yerr=yerr, fmt="o-" if method in CURVES else "s", color=colors[method],
+                        label=name, capsize=2, markersize=4, linewidth=1)
+            for p in pts if method in CURVES else []:
+                ax.annotate(label(p), (p["mean_vx"], p["mean_event_cost"]), fontsize=6, xytext=(3, 3),
+                            textcoords="offset points", color=colors[method])
+        for method in ("ppo_lsi", "ltv_mpc", "srmpc"):
+            values = PAPER[(traffic, method)]
+            ax.plot(values[5], values[2], "o", markerfacecolor="none", markeredgecolor=colors[method],
+                    markersize=9, label=f"{METHODS[method]} (paper)")
+        ax.set_yscale("symlog", linthresh=0.01)
+        ax.set_xlabel("mean v_x [m/s]")
+        ax.set_ylabel("J_c (share of episodes with a collision or road exit)")
+        ax.set_title(f"{traffic} traffic, 1000 episodes per point")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    temporary = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(temporary, dpi=130)
+    temporary.replace(path)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples")
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    args = parser.parse_args()
+    points, episodes = collect(args.resamples, args.seed)
+    report = {}
+    for traffic in TRAFFIC:
+        methods = points[traffic]
+        report[traffic] = {
+            **methods,
+            "dominance": dominance(methods, episodes, args.resamples, args.seed),
+            "at_policy_speed": {c: at_speed(methods[c], methods["ppo_lsi"][0]["mean_vx"]) for c in SRMPC_CURVES},
+            "paper_operating_point": paper_operating_point(traffic, methods, episodes, args.resamples, args.seed),
+            "confirmation": confirmation(traffic, args.resamples, args.seed),
+        }
+    Path("results/figures").mkdir(parents=True, exist_ok=True)
+    figure(report, Path("results/figures/tradeoff.png"))
+    write_outputs({Path("results/tradeoff.json"): json.dumps(report, indent=1) + "\n",
+                   Path("results/tradeoff.md"): markdown(report)})
+    print(markdown(report))
+
+
+if __name__ == "__main__":
+    main()
