@@ -96,9 +96,15 @@ def _variant(stage: str, config: dict, kind: str, directory: str) -> dict[str, s
         if "/ablation/" in f"/{directory}/":
             tags["variant"] = Path(directory).name
         return tags
-    planner = "default"
+    planner = "default"  # the conf/planner option, from the stage's matrix values
+    values = stage.split("@", 1)[1].split("-") if "@" in stage else []
     if stage.startswith("evaluate_planner_variant@"):
-        planner = stage.split("@", 1)[1].split("-", 1)[0]
+        planner = values[0]
+    elif stage.startswith("evaluate_tradeoff@"):  # <method>-<planner>-<traffic>
+        planner = values[1]
+    elif stage.startswith("evaluate_confirmation@"):
+        margin = (config.get("planner") or {}).get("safety_margin_longitudinal_m")
+        planner = "default" if margin in (None, 8.0) else f"margin_{margin:g}m"
     tags["planner"] = planner
     margin = (config.get("planner") or {}).get("safety_margin_longitudinal_m")
     if margin is not None:

@@ -115,3 +115,21 @@ def test_a_rerun_stage_supersedes_its_runs_and_a_dead_import_is_redone(clone, st
         assert runs[old].data.tags["current"] == "false" and runs[old].data.tags["superseded_by"] == new.info.run_id
     assert client.get_run(dead).info.lifecycle_stage == "deleted"
     assert import_results(client, experiment_id, parent, lock_path, clone)["imported"] == 0
+
+
+@pytest.mark.parametrize("stage, margin, planner, variant", [
+    ("evaluate_tradeoff@srmpc_track_rollout-margin_2m-dense", 2.0, "margin_2m", "track_rollout+margin_2m"),
+    ("evaluate_planner_variant@short_margin-ltv_mpc-light", 4.0, "short_margin", "short_margin"),
+    ("evaluate_confirmation@srmpc_recommended-light", 1.0, "margin_1m", "track_rollout+margin_1m"),
+    ("evaluate@srmpc-light", 8.0, "default", "paper"),
+])
+def test_sweep_points_are_tagged_by_their_planner_setting(stage, margin, planner, variant):
+    """The runs table groups the trade-off sweep by method and planner setting (tags planner, margin_m)."""
+    from mlflow_import import _variant
+
+    controller = "ltv_mpc" if "ltv_mpc" in stage else "srmpc"
+    config = {"evaluation": {"controller": controller},
+              "srmpc": {"variant": "track_rollout" if "track_rollout" in stage or "recommended" in stage else "paper"},
+              "planner": {"safety_margin_longitudinal_m": margin}}
+    tags = _variant(stage, config, "evaluation", "results/evaluation/x")
+    assert (tags["planner"], tags["margin_m"], tags["variant"]) == (planner, str(margin), variant)
