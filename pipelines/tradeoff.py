@@ -61,9 +61,13 @@ def settings_of(config: dict) -> dict:
             "x_weight": float(planner["state_weights"][0])}
 
 
+def read_config(directory: Path) -> dict:
+    return yaml.safe_load((directory / "config.yaml").read_text())
+
+
 def point(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame, str, str]:
     """One evaluation as a trade-off point: (point, its episodes, method, traffic)."""
-    config = yaml.safe_load((directory / "config.yaml").read_text())
+    config = read_config(directory)
     row, episodes = method_row(directory, resamples, seed)
     keep = {k: v for k, v in row.items() if k.removesuffix("_ci95") in TABLE_KEYS}
     return ({"settings": settings_of(config), "directory": str(directory), **keep}, episodes, method_of(config),
@@ -80,9 +84,10 @@ def collect(resamples: int, seed: int) -> tuple[dict, dict]:
             if not (TWIN / f"{m}_{t}" / "summary.json").is_file():
                 raise SystemExit(f"tradeoff: {TWIN / f'{m}_{t}'}: no summary.json (run its DVC stage first)")
     for directory in directories:  # every twin evaluation of a curve's method or a single point
+        config = read_config(directory)
+        if method_of(config) not in points[config["scenario"]["traffic"]]:
+            continue  # another SRMPC variant (results/ablation.md): no intervals computed for it
         p, e, method, traffic = point(directory, resamples, seed)
-        if method not in points[traffic]:
-            continue
         if method in SINGLE:
             p.pop("settings")
         points[traffic][method].append(p)

@@ -16,8 +16,9 @@ a rerun resumes each from ``last.pt`` (finished runs are skipped by the trainer 
 Runs are named three ways, combined in this order (DVC's stages name them, conf/ defines them):
 
 - positional: one training's overrides each, e.g. ``"agent=ppo_lsi"``;
-- ``--seeds 0 1 2``: each positional run once per seed (``agent.seed=<seed>``; output directory by default
-  ``results/training/<agent>/seed_<seed>``), in the order run 1 seed 0, run 1 seed 1, ..., run 2 seed 0;
+- ``--seeds 0 1 2``, after the positional runs (it would take them for seeds): each positional run once per
+  seed (``agent.seed=<seed>``; output directory by default ``results/training/<agent>/seed_<seed>``), in the
+  order run 1 seed 0, run 1 seed 1, ..., run 2 seed 0;
 - ``--experiments GROUP``: one run ``+experiment=GROUP/<name>`` per ``conf/experiment/GROUP/<name>.yaml``,
   in name order. Each experiment file defines its run whole, output directory included.
 """
@@ -107,14 +108,15 @@ def run_trainings(runs: list[str], jobs: int, python: str = sys.executable) -> l
             signal.signal(signum, handler)
 
 
-def main() -> None:
+def parse_arguments(argv: list[str] | None = None) -> tuple[list[str], int]:
+    """The trainings this command line names (module docstring) and how many to run at once."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="*", help="one training's overrides each, e.g. 'agent=ppo agent.seed=0'")
     parser.add_argument("--jobs", type=int, default=0, help="trainings at once (0: one per available core)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[], help="each positional run once per seed")
     parser.add_argument("--experiments", default=None, metavar="GROUP",
                         help="one run per conf/experiment/GROUP/*.yaml (+experiment=GROUP/<name>)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.jobs < 0:
         parser.error(f"--jobs={args.jobs}: must be >= 0 (0: one per available core)")
     if args.seeds and not args.runs:
@@ -122,7 +124,11 @@ def main() -> None:
     runs = expand_runs(args.runs, args.seeds, args.experiments)
     if not runs:
         parser.error("no trainings named: give runs, --seeds with runs, or --experiments")
-    jobs = args.jobs or available_cores()
+    return runs, args.jobs or available_cores()
+
+
+def main() -> None:
+    runs, jobs = parse_arguments()
     print(f"{len(runs)} trainings, {jobs} at a time", flush=True)
     finished = run_trainings(runs, jobs)
     failed = [f for f in finished if f.returncode != 0]

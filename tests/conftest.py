@@ -1,6 +1,12 @@
-"""Shared fixtures: scenario envs and hand-built scenes."""
+"""Shared fixtures: scenario envs and hand-built scenes; processes started by a test, killed after it."""
 
 from __future__ import annotations
+
+import os
+import signal
+import subprocess
+from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -39,3 +45,26 @@ def env() -> SrmpcHighwayEnv:
     scenario_env = make_env()
     scenario_env.reset(seed=0)
     return scenario_env
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def start_process() -> Iterator[Callable[[list[str]], subprocess.Popen]]:
+    """``start(command)``: the command in the repository root, in its own session, with piped text output and
+    without the pipeline's parent MLflow run; whatever still runs when the test ends is killed (SIGKILL)."""
+    started: list[subprocess.Popen] = []
+
+    def start(command: list[str]) -> subprocess.Popen:
+        env = {k: v for k, v in os.environ.items() if k != "SRMPC_PARENT_RUN_ID"}
+        process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                   env=env, start_new_session=True)
+        started.append(process)
+        return process
+
+    yield start
+    for process in started:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()

@@ -65,18 +65,8 @@ def _training_runs(cmd: str) -> list[list[str]]:
     """The runs one train_runs.py command names, each as its CLI overrides."""
     import shlex
 
-    tokens = shlex.split(cmd)[2:]
-    seeds, experiments, runs = [], None, []
-    while tokens:
-        token = tokens.pop(0)
-        if token == "--seeds":
-            while tokens and tokens[0].isdigit():
-                seeds.append(int(tokens.pop(0)))
-        elif token == "--experiments":
-            experiments = tokens.pop(0)
-        else:
-            runs.append(token)
-    return [["stage=train", *shlex.split(run)] for run in train_runs.expand_runs(runs, seeds, experiments)]
+    runs, _ = train_runs.parse_arguments(shlex.split(cmd)[2:])
+    return [["stage=train", *shlex.split(run)] for run in runs]
 
 
 @pytest.mark.parametrize("stage", ["train", "train_multiplier_ablation"])

@@ -14,7 +14,6 @@ from dataclasses import fields
 from pathlib import Path
 
 import mlflow
-import pytest
 
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.config.schema import EvaluationConfig
@@ -36,28 +35,10 @@ def _rows(path: Path) -> int:
         return 0
 
 
-STARTED: list[subprocess.Popen] = []
-
-
-@pytest.fixture(autouse=True)
-def _no_process_left_behind():
-    yield
-    while STARTED:
-        process = STARTED.pop()
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.communicate()
-
-
-def _start(tmp_path: Path, out: Path) -> subprocess.Popen:
-    command = [sys.executable, "-m", "srmpc", *OVERRIDES, f"evaluation.output_dir={out}",
-               f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}", f"tracking.artifact_location={tmp_path / 'mlruns'}",
-               f"tracking.experiment_name={EXPERIMENT}", f"hydra.run.dir={tmp_path / 'hydra'}"]
-    env = {k: v for k, v in os.environ.items() if k != "SRMPC_PARENT_RUN_ID"}
-    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                               start_new_session=True)
-    STARTED.append(process)
-    return process
+def _command(tmp_path: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "srmpc", *OVERRIDES, f"evaluation.output_dir={out}",
+            f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}", f"tracking.artifact_location={tmp_path / 'mlruns'}",
+            f"tracking.experiment_name={EXPERIMENT}", f"hydra.run.dir={tmp_path / 'hydra'}"]
 
 
 def _interrupt_after(process: subprocess.Popen, csv: Path, rows: int, signum: int) -> int:
@@ -83,23 +64,23 @@ def _statuses(tmp_path: Path) -> list[str]:
     return [run.info.status for run in runs]
 
 
-def test_sigterm_then_sigkill_lose_no_episode_and_the_rerun_matches_an_uninterrupted_run(tmp_path):
+def test_sigterm_then_sigkill_lose_no_episode_and_the_rerun_matches_an_uninterrupted_run(tmp_path, start_process):
     reference = run_evaluation(to_objects(compose_config([*OVERRIDES, "tracking.enabled=false"])), "reference\n",
                                tmp_path / "reference", Run(None), progress=False)
     out = tmp_path / "eval"
     csv = out / "episodes.csv"
 
-    code = _interrupt_after(_start(tmp_path, out), csv, 2, signal.SIGTERM)
+    code = _interrupt_after(start_process(_command(tmp_path, out)), csv, 2, signal.SIGTERM)
     assert code == 128 + signal.SIGTERM
     assert _statuses(tmp_path) == ["FAILED"]
     kept = csv.read_text()
 
-    code = _interrupt_after(_start(tmp_path, out), csv, _rows(csv) + 2, signal.SIGKILL)
+    code = _interrupt_after(start_process(_command(tmp_path, out)), csv, _rows(csv) + 2, signal.SIGKILL)
     assert code == -signal.SIGKILL
     assert csv.read_text().startswith(kept)  # the first run's episodes are still there
     assert _statuses(tmp_path) == ["FAILED", "RUNNING"]  # a killed process cannot end its run
 
-    process = _start(tmp_path, out)
+    process = start_process(_command(tmp_path, out))
     _, stderr = process.communicate(timeout=600)
     assert process.returncode == 0, stderr[-3000:]
     assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(reference))

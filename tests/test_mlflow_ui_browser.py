@@ -1,6 +1,6 @@
 """In a real browser, the MLflow UI lists an SRMPC and an LTV-MPC run with their J_c (headless Chromium).
 
-Chromium is driven over its DevTools protocol (a websocket, through aiohttp, which DVC brings): open the
+Chromium is driven over its DevTools protocol (``tests/chromium_devtools.py``): open the
 runs table, choose the metric columns (MLflow 3.17 shows none by default), reload, screenshot, read the DOM.
 Needs Chromium from Debian's packages (``apt-get install chromium``); skipped, saying so, without it.
 The screenshot goes to ``$SRMPC_UI_SCREENSHOT`` if set, else into the test's temporary directory.
@@ -8,66 +8,23 @@ The screenshot goes to ``$SRMPC_UI_SCREENSHOT`` if set, else into the test's tem
 
 import asyncio
 import base64
-import contextlib
 import json
 import os
 import re
-import shutil
-import signal
-import socket
 import subprocess
 import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
 
 from srmpc.tracking import PARENT_RUN_ENV, RUNS_TABLE_COLUMNS, runs_table_url, tracked_run
+from tests.chromium_devtools import CHROMIUM, chromium_page
+from tests.mlflow_server import serve_mlflow
 
 pytestmark = pytest.mark.slow
 
-CHROMIUM = next((shutil.which(name) for name in ("chromium", "chromium-browser", "google-chrome")
-                 if shutil.which(name)), None)
 RUNS = {"evaluate-srmpc-paper-light": ("srmpc", 0.002), "evaluate-ltv_mpc-light": ("ltv_mpc", 0.041)}
 J_C = "mean_event_cost"
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-@contextlib.contextmanager
-def _serve(uri: str, artifacts: str, log_path: Path):
-    """``mlflow server`` on a free loopback port over the store ``uri``; yields its base URL."""
-    port = _free_port()
-    log = log_path.open("w")
-    server = subprocess.Popen(
-        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--default-artifact-root", artifacts,
-         "--host", "127.0.0.1", "--port", str(port), "--workers", "1"],
-        stdout=log, stderr=subprocess.STDOUT, start_new_session=True)  # its own group: stopped with its workers
-    try:
-        deadline = time.monotonic() + 900  # ~20 s on an idle machine; minutes on a loaded one
-        while True:
-            try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=5) as response:
-                    if response.status == 200:
-                        break
-            except OSError:
-                pass
-            if server.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"mlflow server did not answer: {log_path.read_text()[-2000:]}")
-            time.sleep(2)
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        try:
-            server.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-        log.close()
 
 
 @pytest.fixture
@@ -85,13 +42,14 @@ def mlflow_ui(tmp_path, monkeypatch):
 
     experiment_id = mlflow.MlflowClient(uri).get_experiment_by_name("srmpc").experiment_id
     mlflow.set_tracking_uri(None)
-    with _serve(uri, artifacts, tmp_path / "server.log") as base:
+    with serve_mlflow(uri, artifacts, tmp_path / "server.log") as base:
         yield runs_table_url(base, experiment_id)
 
 
-SELECT_COLUMNS_JS = """(() => {
+RUNS_TABLE_STATE_JS = """(() => {
   // The runs table keeps its state (selectedColumns among it) as JSON in localStorage; MLflow 3.17 shows
   // no metric column until one is chosen, so choose the paper's view here, as Columns -> Metrics would.
+  // EXPANDED: the parent runs to show expanded ({} for none; imported runs are a parent's children).
   let changed = 0;
   for (let i = 0; i < localStorage.length; i++) {
     const key = localStorage.key(i);
@@ -99,6 +57,7 @@ SELECT_COLUMNS_JS = """(() => {
     try { state = JSON.parse(localStorage.getItem(key)); } catch (e) { continue; }
     if (state && Array.isArray(state.selectedColumns)) {
       state.selectedColumns = COLUMNS;
+      Object.assign(state, EXPANDED);
       localStorage.setItem(key, JSON.stringify(state));
       changed++;
     }
@@ -107,61 +66,28 @@ SELECT_COLUMNS_JS = """(() => {
 })()"""
 
 
+def runs_table_state(parent: str | None = None) -> str:
+    """``RUNS_TABLE_STATE_JS`` selecting the paper's metric columns (and expanding ``parent``)."""
+    columns = json.dumps([c for c in RUNS_TABLE_COLUMNS if c.startswith("metrics.")])
+    expanded = json.dumps({"runsExpanded": {parent: True}} if parent else {})
+    return RUNS_TABLE_STATE_JS.replace("COLUMNS", columns).replace("EXPANDED", expanded)
+
+
 async def _browse(url: str, profile: Path, screenshot: Path, deadline_s: float) -> str:
     """Open ``url`` in headless Chromium over the DevTools protocol, select the paper's columns, reload,
     save a screenshot; returns the page's DOM."""
-    import aiohttp
-
-    chromium = subprocess.Popen(
-        [CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-         f"--user-data-dir={profile}", "--window-size=1800,700", "--remote-debugging-port=0", "about:blank"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    deadline = time.monotonic() + deadline_s
-    try:
-        port_file = profile / "DevToolsActivePort"
-        while not port_file.exists() or not port_file.read_text().strip():
-            assert time.monotonic() < deadline and chromium.poll() is None, "Chromium did not start"
-            time.sleep(1)
-        port = int(port_file.read_text().split()[0])
-        async with aiohttp.ClientSession() as session:
-            async with session.get(f"http://127.0.0.1:{port}/json") as response:
-                page = next(t for t in await response.json() if t["type"] == "page")
-            async with session.ws_connect(page["webSocketDebuggerUrl"], max_msg_size=0) as socket_:
-                ids = iter(range(1, 10**6))
-
-                async def call(method: str, **params):
-                    number = next(ids)
-                    await socket_.send_json({"id": number, "method": method, "params": params})
-                    async for message in socket_:
-                        data = message.json()
-                        if data.get("id") == number:
-                            return data.get("result", {})
-                    raise AssertionError("DevTools connection closed")
-
-                async def evaluate(expression: str):
-                    result = await call("Runtime.evaluate", expression=expression, returnByValue=True)
-                    return result.get("result", {}).get("value")
-
-                async def wait_for(expression: str, what: str) -> None:
-                    while not await evaluate(expression):
-                        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-                        await asyncio.sleep(2)
-
-                names = " && ".join(f"document.body.innerText.includes({json.dumps(n)})" for n in RUNS)
-                await call("Page.navigate", url=url)
-                await wait_for(f"document.body && {names}", "the runs table")
-                columns = json.dumps([c for c in RUNS_TABLE_COLUMNS if c.startswith("metrics.")])
-                assert await evaluate(SELECT_COLUMNS_JS.replace("COLUMNS", columns)) >= 1, "no runs-table state"
-                await call("Page.reload")
-                await wait_for(f"document.body && {names} && document.body.innerText.includes({json.dumps(J_C)})",
-                               "the J_c column")
-                await asyncio.sleep(3)  # let the grid settle
-                shot = await call("Page.captureScreenshot", format="png")
-                screenshot.write_bytes(base64.b64decode(shot["data"]))
-                return await evaluate("document.documentElement.outerHTML")
-    finally:
-        os.killpg(chromium.pid, signal.SIGKILL)
-        chromium.wait(timeout=30)
+    async with chromium_page(profile, deadline_s=deadline_s) as page:
+        names = " && ".join(f"document.body.innerText.includes({json.dumps(n)})" for n in RUNS)
+        await page.call("Page.navigate", url=url)
+        await page.wait_for(f"document.body && {names}", "the runs table")
+        assert await page.evaluate(runs_table_state()) >= 1, "no runs-table state"
+        await page.call("Page.reload")
+        await page.wait_for(f"document.body && {names} && document.body.innerText.includes({json.dumps(J_C)})",
+                            "the J_c column")
+        await asyncio.sleep(3)  # let the grid settle
+        shot = await page.call("Page.captureScreenshot", format="png")
+        screenshot.write_bytes(base64.b64decode(shot["data"]))
+        return await page.evaluate("document.documentElement.outerHTML")
 
 
 @pytest.mark.timeout(2400)
@@ -186,23 +112,6 @@ def test_runs_table_shows_srmpc_and_ltv_mpc_with_their_j_c(mlflow_ui, tmp_path):
 
 
 ROOT = Path(__file__).resolve().parents[1]
-EXPAND_AND_SELECT_JS = """(() => {
-  // As above, and expand the pipeline's parent run: the imported runs are its children, collapsed by default.
-  let changed = 0;
-  for (let i = 0; i < localStorage.length; i++) {
-    const key = localStorage.key(i);
-    let state;
-    try { state = JSON.parse(localStorage.getItem(key)); } catch (e) { continue; }
-    if (state && Array.isArray(state.selectedColumns)) {
-      state.selectedColumns = COLUMNS;
-      state.runsExpanded = {[PARENT]: true};
-      localStorage.setItem(key, JSON.stringify(state));
-      changed++;
-    }
-  }
-  return changed;
-})()"""
-
 CHARTS_JS = """[...document.querySelectorAll('.js-plotly-plot')].map(plot => {
   let card = plot;  // the chart's card: the nearest ancestor naming the series, "<run> (<metric>)"
   for (let i = 0; i < 8 && card.parentElement && !(card.innerText || '').includes('('); i++) card = card.parentElement;
@@ -248,7 +157,7 @@ def fresh_clone_ui(tmp_path):
     client = mlflow.MlflowClient(uri)
     experiment_id = client.get_experiment_by_name("srmpc").experiment_id
     assert len(client.search_runs([experiment_id], max_results=1000)) == expected + 1
-    with _serve(uri, artifacts, tmp_path / "server.log") as base:
+    with serve_mlflow(uri, artifacts, tmp_path / "server.log") as base:
         yield base, experiment_id, parent, client
 
 
@@ -256,17 +165,19 @@ def fresh_clone_ui(tmp_path):
 def test_fresh_clone_runs_table_shows_the_tables_methods_with_their_j_c_and_a_training_chart(fresh_clone_ui, tmp_path):
     if CHROMIUM is None:
         pytest.skip("Chromium is not installed; install it from Debian's packages: apt-get install chromium")
-    from tests.chromium_devtools import chromium_page
-
     base, experiment_id, parent, client = fresh_clone_ui
+    from paper_table import CONFIRMATION, EVALUATION  # the table's rows: the twin's runs, the confirmation's
+
     table = json.loads((ROOT / "results" / "table.json").read_text())
     rows = {}  # run name -> the J_c the paper's table gives its method and traffic
     for traffic, methods in table.items():
         for method, summary in methods.items():
-            directory = f"results/evaluation/twin/{method}_{traffic}"
+            recommended = method == "srmpc_recommended"  # the confirmation's run of srmpc=track_rollout
+            directory = f"{CONFIRMATION if recommended else EVALUATION}/{method}_{traffic}"
             runs = client.search_runs([experiment_id], filter_string=f"tags.output_dir = '{directory}'")
             assert len(runs) == 1, f"{directory}: {len(runs)} runs"
-            assert runs[0].data.tags["method"] == method and runs[0].data.tags["traffic"] == traffic
+            tagged = "srmpc_track_rollout" if recommended else method
+            assert runs[0].data.tags["method"] == tagged and runs[0].data.tags["traffic"] == traffic
             assert runs[0].data.tags["mlflow.parentRunId"] == parent
             rows[runs[0].info.run_name] = summary[J_C]
     assert len(rows) >= 6, rows
@@ -280,9 +191,7 @@ def test_fresh_clone_runs_table_shows_the_tables_methods_with_their_j_c_and_a_tr
             names = " && ".join(f"document.body.innerText.includes({json.dumps(n)})" for n in rows)
             await page.call("Page.navigate", url=runs_table_url(base, experiment_id))
             await page.wait_for("document.body && document.body.innerText.includes('make reproduce')", "the parent")
-            columns = json.dumps([c for c in RUNS_TABLE_COLUMNS if c.startswith("metrics.")])
-            state = EXPAND_AND_SELECT_JS.replace("COLUMNS", columns).replace("PARENT", json.dumps(parent))
-            assert await page.evaluate(state) >= 1, "no runs-table state"
+            assert await page.evaluate(runs_table_state(parent)) >= 1, "no runs-table state"
             await page.call("Page.reload")
             await page.wait_for(f"document.body && {names} && document.body.innerText.includes({json.dumps(J_C)})",
                                 "the imported runs and the J_c column")

@@ -19,27 +19,6 @@ import pytest
 from srmpc.output_lock import LOCK_NAME, OutputDirectoryBusy, OutputDirectoryUnwritable, exclusive_output_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-STARTED: list[subprocess.Popen] = []
-
-
-@pytest.fixture(autouse=True)
-def _no_process_left_behind():
-    yield
-    while STARTED:
-        process = STARTED.pop()
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.communicate()
-
-
-def _start(command: list[str]) -> subprocess.Popen:
-    env = {k: v for k, v in os.environ.items() if k != "SRMPC_PARENT_RUN_ID"}
-    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                               start_new_session=True)
-    STARTED.append(process)
-    return process
-
-
 def _wait_for(condition, process: subprocess.Popen) -> None:
     deadline = time.monotonic() + 600  # generous: a loaded machine starts the process slowly
     while not condition() and process.poll() is None and time.monotonic() < deadline:
@@ -90,9 +69,9 @@ def test_an_unwritable_directory_names_the_key(tmp_path):
             pass
 
 
-def test_sigkill_leaves_no_stale_lock(tmp_path):
+def test_sigkill_leaves_no_stale_lock(tmp_path, start_process):
     directory = tmp_path / "out"
-    holder = _start([sys.executable, "-c", "import sys, time; from pathlib import Path; "
+    holder = start_process([sys.executable, "-c", "import sys, time; from pathlib import Path; "
                      "from srmpc.output_lock import exclusive_output_dir\n"
                      f"with exclusive_output_dir(Path({str(directory)!r}), 'k'):\n"
                      "    print('held', flush=True); time.sleep(600)"])
@@ -107,15 +86,15 @@ def test_sigkill_leaves_no_stale_lock(tmp_path):
         assert (directory / LOCK_NAME).read_text().split()[0] == str(os.getpid())
 
 
-def test_two_evaluations_into_one_directory(tmp_path):
+def test_two_evaluations_into_one_directory(tmp_path, start_process):
     out, experiment, episodes = tmp_path / "eval", "srmpc-lock-eval-test", 10_000  # runs until the test ends it
     command = [sys.executable, "-m", "srmpc", "evaluation.controller=lane_keeping", f"evaluation.episodes={episodes}",
                "evaluation.workers=1", "scenario.episode_steps=100", f"evaluation.output_dir={out}",
                *_tracking(tmp_path, experiment)]
-    first = _start([*command, f"hydra.run.dir={tmp_path / 'hydra1'}"])
+    first = start_process([*command, f"hydra.run.dir={tmp_path / 'hydra1'}"])
     csv_path = out / "episodes.csv"
     _wait_for(lambda: csv_path.exists() and len(csv_path.read_text().splitlines()) >= 2, first)
-    second = _start([*command, f"hydra.run.dir={tmp_path / 'hydra2'}"])
+    second = start_process([*command, f"hydra.run.dir={tmp_path / 'hydra2'}"])
     _refused_line(second, out, "evaluation.output_dir", first)
     assert first.poll() is None, "the first evaluation ended before the second was refused"
     first.send_signal(signal.SIGTERM)  # the first keeps its finished episodes
@@ -127,16 +106,16 @@ def test_two_evaluations_into_one_directory(tmp_path):
     assert not (out / LOCK_NAME).exists()  # released and removed by the first on its way out
 
 
-def test_two_trainings_into_one_directory(tmp_path):
+def test_two_trainings_into_one_directory(tmp_path, start_process):
     out, experiment = tmp_path / "train", "srmpc-lock-train-test"
     command = [sys.executable, "-m", "srmpc", "stage=train", "agent=ppo_lsi", "agent.task=toy", "agent.num_envs=16",
                "agent.frames_per_batch=256", "agent.minibatch_size=128", "agent.epochs=1", "agent.multiplier_steps=2",
                "agent.checkpoint_every=1", f"agent.total_frames={256 * 10_000}", f"agent.output_dir={out}",
                *_tracking(tmp_path, experiment)]
-    first = _start([*command, f"hydra.run.dir={tmp_path / 'hydra1'}"])
+    first = start_process([*command, f"hydra.run.dir={tmp_path / 'hydra1'}"])
     metrics = out / "metrics.csv"
     _wait_for(lambda: metrics.exists() and len(metrics.read_text().splitlines()) >= 2, first)
-    second = _start([*command, f"hydra.run.dir={tmp_path / 'hydra2'}"])
+    second = start_process([*command, f"hydra.run.dir={tmp_path / 'hydra2'}"])
     _refused_line(second, out, "agent.output_dir", first)
     assert first.poll() is None, "the first training ended before the second was refused"
     first.send_signal(signal.SIGTERM)  # the first keeps its checkpoint and rows

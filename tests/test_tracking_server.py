@@ -5,27 +5,17 @@ from __future__ import annotations
 
 import http.server
 import os
-import signal
-import socket
 import subprocess
 import sys
 import threading
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
 
 from srmpc.tracking import PARENT_RUN_ENV, TrackingServerUnreachable, check_tracking_server
+from tests.mlflow_server import free_port, serve_mlflow
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _free_port() -> int:
-    """A loopback port nothing listens on (bound, then released)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def _smoke(tmp_path: Path, uri: str, experiment: str = "srmpc-server-test") -> subprocess.CompletedProcess:
@@ -37,7 +27,7 @@ def _smoke(tmp_path: Path, uri: str, experiment: str = "srmpc-server-test") -> s
 
 
 def test_unreachable_server_is_one_line_and_writes_nothing(tmp_path):
-    uri = f"http://127.0.0.1:{_free_port()}"
+    uri = f"http://127.0.0.1:{free_port()}"
     result = _smoke(tmp_path, uri)
     assert result.returncode == 2, result.stderr[-3000:]
     assert result.stderr.strip().splitlines() == [
@@ -77,25 +67,8 @@ def test_a_server_that_answers_but_not_healthy_is_refused():
 def test_a_real_server_takes_the_run(tmp_path):
     import mlflow
 
-    port = _free_port()
-    log = (tmp_path / "server.log").open("w")
-    server = subprocess.Popen(
-        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", f"sqlite:///{tmp_path / 'server.db'}",
-         "--default-artifact-root", str(tmp_path / "server-artifacts"), "--host", "127.0.0.1", "--port", str(port),
-         "--workers", "1"], stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-    uri = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 900  # ~20 s on an idle machine; minutes on a loaded one
-        while True:
-            try:
-                with urllib.request.urlopen(f"{uri}/health", timeout=5) as response:
-                    if response.status == 200:
-                        break
-            except OSError:
-                pass
-            if server.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"mlflow server did not answer: {(tmp_path / 'server.log').read_text()[-2000:]}")
-            time.sleep(1)
+    with serve_mlflow(f"sqlite:///{tmp_path / 'server.db'}", str(tmp_path / "server-artifacts"),
+                      tmp_path / "server.log") as uri:
         result = _smoke(tmp_path, uri)
         assert result.returncode == 0, result.stderr[-3000:]
         client = mlflow.MlflowClient(tracking_uri=uri)
@@ -107,10 +80,3 @@ def test_a_real_server_takes_the_run(tmp_path):
         assert len(client.get_metric_history(run.info.run_id, "episode/n_steps")) == 2  # one point per episode
         assert {a.path for a in client.list_artifacts(run.info.run_id)} >= {"config.yaml", "episodes.csv",
                                                                               "summary.json"}
-    finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        try:
-            server.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-            server.wait()
