@@ -22,6 +22,7 @@ from srmpc.confidence_intervals import paired_differences, table_metrics_with_in
 
 EVALUATION = Path("results/evaluation/twin")
 METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "ppo": "PPO",
+           "ppo_sb3": "PPO (Stable-Baselines3)",
            "lane_keeping": "Lane keeping (baseline)",
            "srmpc_recommended": "SRMPC, recommended (ours: srmpc=track_rollout planner=margin_1m)"}
 CONFIRMATION = Path("results/evaluation/confirmation")
@@ -196,6 +197,9 @@ def main() -> None:
                 other: paired_differences(frames["srmpc"], frames[other], args.resamples, args.seed)
                 for other in PAIRED_AGAINST if other in frames
             }
+        if "ppo_sb3" in rows and "ppo" in rows:  # the two PPOs on the same episodes
+            rows["ppo_sb3"]["paired_differences"] = {
+                "ppo": paired_differences(frames["ppo_sb3"], frames["ppo"], args.resamples, args.seed)}
         recommended = CONFIRMATION / f"srmpc_recommended_{traffic}"
         if (recommended / "summary.json").exists():  # ours, beyond the paper: on fresh seeds (not paired)
             rows["srmpc_recommended"], _ = method_row(recommended, args.resamples, args.seed)
@@ -218,6 +222,10 @@ def main() -> None:
                              f"{ci(d, 'mean_event_cost', 3)} | "
                              f"{ci(d, 'mean_n_steps', 0)} | {ci(d, 'mean_vx', 2)} |")
             lines += ["", "The paper's claims, checked:", "", *claims(rows, traffic)]
+        if "paired_differences" in rows.get("ppo_sb3", {}):
+            d = rows["ppo_sb3"]["paired_differences"]["ppo"]
+            lines += ["", f"{METHODS['ppo_sb3']} - PPO (ours), same settings and episodes: J_r "
+                      f"{ci(d, 'mean_return', 0)}, J_c {ci(d, 'mean_event_cost', 3)}, v_x {ci(d, 'mean_vx', 2)} m/s."]
         lines.append("")
     lines += crosscheck_lines(Path("results/evaluation/crosscheck.json"))
     write_outputs({Path("results/table.md"): "\n".join(lines),

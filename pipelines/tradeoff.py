@@ -45,8 +45,11 @@ TABLE_KEYS = ("episodes", "mean_return", "mean_return_per_step", "mean_event_cos
 
 
 def method_of(config: dict) -> str:
-    """The curve a config belongs to: ``ltv_mpc``, ``srmpc`` or ``srmpc_<variant>``."""
+    """The curve a config belongs to: ``ltv_mpc``, ``srmpc`` or ``srmpc_<variant>``; a policy's: its agent, the
+    directory of its ``policy_path`` (``results/training/ppo_sb3/policy.pt``: ``ppo_sb3``) when one is set."""
     controller = config["evaluation"]["controller"]
+    if controller in ("ppo", "ppo_lsi") and config["evaluation"].get("policy_path"):
+        return Path(config["evaluation"]["policy_path"]).parent.name
     if controller != "srmpc":
         return controller
     variant = config["srmpc"].get("variant", "paper")

@@ -15,7 +15,8 @@ a rerun resumes each from ``last.pt`` (finished runs are skipped by the trainer 
 
 Runs are named three ways, combined in this order (DVC's stages name them, conf/ defines them):
 
-- positional: one training's overrides each, e.g. ``"agent=ppo_lsi"``;
+- positional: one training's overrides each, e.g. ``"agent=ppo_lsi"``; a run that names its stage
+  (``"stage=train_sb3 agent=ppo agent.name=ppo_sb3"``: Stable-Baselines3's PPO) runs that one instead;
 - ``--seeds 0 1 2``, after the positional runs (it would take them for seeds): each positional run once per
   seed (``agent.seed=<seed>``; output directory by default ``results/training/<agent>/seed_<seed>``), in the
   order run 1 seed 0, run 1 seed 1, ..., run 2 seed 0;
@@ -67,6 +68,12 @@ def expand_runs(runs: list[str], seeds: list[int], experiments: str | None) -> l
     return expanded
 
 
+def training_command(overrides: str) -> list[str]:
+    """``stage=train <overrides>``, unless the run names its own training stage (``stage=train_sb3 ...``)."""
+    tokens = shlex.split(overrides)
+    return tokens if any(t.startswith("stage=") for t in tokens) else ["stage=train", *tokens]
+
+
 def available_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
@@ -89,7 +96,7 @@ def run_trainings(runs: list[str], jobs: int, python: str = sys.executable) -> l
         if stopping:
             return Finished(overrides, 128 + signal.SIGTERM, 0.0, "not started: stopped\n")
         started = time.perf_counter()
-        process = subprocess.Popen([python, "-m", "srmpc", "stage=train", *shlex.split(overrides)],
+        process = subprocess.Popen([python, "-m", "srmpc", *training_command(overrides)],
                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=environment)
         processes.add(process)
         output, _ = process.communicate()

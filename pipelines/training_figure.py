@@ -1,4 +1,4 @@
-"""The paper's training figure (PPO vs PPO-L-SI, over seeds) and ``results/training/summary.json``.
+"""The training figure (PPO, PPO-L-SI and Stable-Baselines3's PPO, over seeds) and ``results/training/summary.json``.
 
     python pipelines/training_figure.py [--training-dir results/training] [--seeds 0 1 2] [--window 0.05]
 
@@ -13,7 +13,8 @@ by the trainer; DVC stage ``train``) and writes:
   cost_return, cost_rate (and more) over the last 5% of training, ``per_seed`` (the same per seed),
   ``cost_rate_ci95``, ``cost_return_ci95`` and ``return_ci95`` (Student-t over seeds), the list
   ``seeds``, and the paper's claim (PPO-L-SI's final cost rate under half of PPO's, its return not
-  worse) evaluated on the means and per seed, and ``flat_from_frames``: per series, the first frame
+  worse) evaluated on the means and per seed against our PPO (``paper_claim``) and against
+  Stable-Baselines3's PPO (``paper_claim_vs_ppo_sb3``), and ``flat_from_frames``: per series, the first frame
   after which the smoothed mean over seeds stays within 25% of its final value.
 """
 
@@ -32,7 +33,8 @@ sys.path.insert(0, str(ROOT))
 from srmpc.agents.report import read_metrics, summarize_training  # noqa: E402
 from srmpc.confidence_intervals import t_interval  # noqa: E402
 
-AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI"}
+AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI", "ppo_sb3": "PPO (Stable-Baselines3)"}
+"""ppo_sb3: the peer PPO (srmpc.sb3_ppo, DVC stage ``train_sb3``), PPO's settings in another implementation."""
 SERIES = (("return", "episode/return", "episodic return $J_r$"),
           ("cost_return", "episode/cost_return", "episodic cost return $J_c$"),
           ("cost_rate", "cost_rate", r"cost rate $\rho_c$"))
@@ -77,12 +79,13 @@ def summarize_seeds(per_seed: dict[int, dict[str, float]]) -> dict:
     return summary
 
 
-def paper_claim(ppo: dict, lsi: dict) -> dict:
+def paper_claim(ppo: dict, lsi: dict, baseline: str = "our PPO (srmpc.agents, constraint off)") -> dict:
     """The paper's training claim on the means over seeds, and seed by seed (same seed, same resets)."""
     holds = lambda a, b: bool(b["cost_rate"] < 0.5 * a["cost_rate"] and b["return"] >= a["return"])  # noqa: E731
     common = sorted(set(ppo["per_seed"]) & set(lsi["per_seed"]), key=int)
     return {
         "statement": "at the end of training PPO-L-SI's cost rate is under half of PPO's and its return is not worse",
+        "ppo": baseline,
         "cost_rate_ratio_lsi_over_ppo": lsi["cost_rate"] / ppo["cost_rate"] if ppo["cost_rate"] > 0 else None,
         "return_difference_lsi_minus_ppo": lsi["return"] - ppo["return"],
         "holds": holds(ppo, lsi),
@@ -147,8 +150,8 @@ def main() -> None:
     for axis in axes:
         axis.grid(alpha=0.3)
         axis.legend()
-    fig.suptitle(f"PPO vs PPO-L-SI in training: mean over seeds, band = range over seeds "
-                 f"(running mean over {args.window:.0%} of the iterations)")
+    fig.suptitle(f"PPO (ours and Stable-Baselines3's) vs PPO-L-SI in training: mean over seeds, band = range over "
+                 f"seeds (running mean over {args.window:.0%} of the iterations)")
     fig.tight_layout()
     fig.savefig(args.figure_dir / "training.png", dpi=120)
     with (args.figure_dir / "training.csv").open("w", newline="") as handle:
@@ -163,6 +166,9 @@ def main() -> None:
         summary[agent]["flat_from_frames"] = {**frames_by_series, "tolerance": FLAT_TOLERANCE}
     if {"ppo", "ppo_lsi"} <= summary.keys():
         summary["paper_claim"] = paper_claim(summary["ppo"], summary["ppo_lsi"])
+    if {"ppo_sb3", "ppo_lsi"} <= summary.keys():
+        summary["paper_claim_vs_ppo_sb3"] = paper_claim(summary["ppo_sb3"], summary["ppo_lsi"],
+                                                        "Stable-Baselines3's PPO with our PPO's settings")
     (args.training_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(json.dumps({k: v for k, v in summary.items()}, indent=2)[:4000])
 

@@ -6,6 +6,7 @@ Examples::
     python -m srmpc +experiment=dense_traffic evaluation.episodes=100
     python -m srmpc --cfg job              # print the composed config
     python -m srmpc stage=train agent=ppo_lsi   # train PPO-L-SI (agent=ppo: the baseline)
+    python -m srmpc stage=train_sb3 agent=ppo agent.name=ppo_sb3   # Stable-Baselines3's PPO, same settings
 
 Config errors (wrong type, unknown key, invalid choice, invalid value) exit with status 2 and one
 line naming the key and the value (an output directory that cannot be created included), and so does
@@ -54,7 +55,7 @@ def _raise_on_sigterm(signum, frame) -> None:
 
 def stage_output_dir(config: Config, hydra_dir: Path) -> tuple[Path, str]:
     """(the directory the stage writes its results into, the config key that names it)."""
-    if config.stage is Stage.train:
+    if config.stage in (Stage.train, Stage.train_sb3):
         from srmpc.stages.train import training_dir
 
         return training_dir(config), "agent.output_dir"
@@ -74,7 +75,9 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
     config: Config = to_objects(cfg)
     config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
     tracking = config.tracking
-    if config.stage is Stage.train:
+    if config.stage is Stage.train_sb3:
+        run_name = f"train-{config.agent.name}-sb3-{config.scenario.traffic}"
+    elif config.stage is Stage.train:
         run_name = f"train-{config.agent.name}-{config.agent.task.value}-{config.scenario.traffic}"
     else:
         controller = config.evaluation.controller.value
@@ -102,6 +105,10 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
             from srmpc.stages.train import run_training
 
             return run_training(config, OmegaConf.to_container(cfg, resolve=True), active_run)
+        if config.stage is Stage.train_sb3:
+            from srmpc.stages.train_sb3 import run_sb3_training
+
+            return run_sb3_training(config, OmegaConf.to_container(cfg, resolve=True), active_run)
     raise ConfigError(f"stage={config.stage.value}: no runner")
 
 

@@ -123,7 +123,7 @@ def result_view(summary: Mapping[str, Any], output_dir: Path, run_id: str | None
 
 def print_result(cfg: Any, summary: Mapping[str, Any], hydra_output_dir: Path, console: Console | None = None) -> None:
     """Print the run's result table (``cfg``: the composed DictConfig of ``python -m srmpc``)."""
-    training = getattr(cfg.stage, "value", cfg.stage) == "train"
+    training = getattr(cfg.stage, "value", cfg.stage) in ("train", "train_sb3")
     if training:
         output_dir = (Path(cfg.agent.output_dir) if cfg.agent.output_dir
                       else Path("results/training") / cfg.agent.name / f"seed_{cfg.agent.seed}")

@@ -115,7 +115,7 @@ def run_tags(params: Mapping[str, Any]) -> dict[str, str]:
     stage = plain(params.get("stage"))
     scenario, agent = params.get("scenario") or {}, params.get("agent") or {}
     evaluation, srmpc = params.get("evaluation") or {}, params.get("srmpc") or {}
-    if stage == "train":
+    if stage in ("train", "train_sb3"):
         method, seed = plain(agent.get("name")), agent.get("seed")
     else:
         method, seed = plain(evaluation.get("controller")), evaluation.get("seed")

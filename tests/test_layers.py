@@ -6,7 +6,8 @@ Floors, from the ground up, in the order data flows through them (README, "Layou
 1. ``scenario``: the highway scenario (parameters, reward, safety index, observation, highway-env env)
 2. ``sim``: the numba twin of the scenario
 3. ``agents`` (PPO, PPO-L-SI) and ``mpc`` (the LTV-MPC QP and planner), side by side: neither imports the other
-4. ``controllers``: policies and planners as closed-loop controllers (SRMPC among them)
+4. ``controllers``: policies and planners as closed-loop controllers (SRMPC among them), and beside them
+   ``sb3_ppo``: Stable-Baselines3's PPO on the twin, the peer of ``agents``' PPO (it uses agents' parts)
 5. ``episode_loop``, ``video``, ``result_table``, ``tracking``: episodes of a controller, their records
 6. ``config``: the typed schema and its composition, on top of what it composes
 7. ``sweep``: Hydra multirun jobs (their directories, their MLflow parent)
@@ -28,7 +29,7 @@ FLOOR = {
     "scenario": 1,
     "sim": 2,
     "agents": 3, "mpc": 3,
-    "controllers": 4,
+    "controllers": 4, "sb3_ppo": 4,
     "episode_loop": 5, "video": 5, "result_table": 5, "tracking": 5,
     "config": 6,
     "sweep": 7,

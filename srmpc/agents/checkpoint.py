@@ -66,11 +66,16 @@ def save_policy(actor_state: dict[str, torch.Tensor], metadata: dict[str, Any], 
     atomic_torch_save({"actor": actor_state, **metadata}, path)
 
 
+def read_policy_file(path: Path) -> dict[str, Any]:
+    """The dict a ``policy.pt`` holds (ours, or ``srmpc.sb3_ppo``'s with ``action_head``); one-line error if not."""
+    return _load(path, "policy file")
+
+
 def load_actor(path: Path):
     """Rebuild the actor (a ProbabilisticActor) saved in a ``policy.pt`` by :func:`save_policy`."""
     from srmpc.agents.networks import make_actor
 
-    saved = _load(path, "policy file")
+    saved = read_policy_file(path)
     try:
         actor = make_actor(saved["observation_dim"], saved["action_low"], saved["action_high"], saved["hidden_sizes"])
         actor.load_state_dict(saved["actor"])

@@ -27,6 +27,8 @@ class Stage(Enum):
     """Run closed-loop evaluation episodes of ``evaluation.controller``."""
     train = "train"
     """Train ``agent`` (PPO or PPO-L-SI) on the batched simulator; resumes from its checkpoint."""
+    train_sb3 = "train_sb3"
+    """Train Stable-Baselines3's PPO with ``agent``'s hyperparameters on the same simulator (srmpc.sb3_ppo)."""
 
 
 class ControllerName(Enum):

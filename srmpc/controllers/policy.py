@@ -1,7 +1,10 @@
-"""A trained actor as a controller: its deterministic action (the TanhNormal's mode), in numpy.
+"""A trained actor as a controller: its deterministic action, in numpy.
 
-The actor's linear layers are copied into :class:`srmpc.sim.mlp.MlpPolicy`, which maps the mean
+Our actor's linear layers are copied into :class:`srmpc.sim.mlp.MlpPolicy`, which maps the mean
 z into the action box as TorchRL's TanhNormal mode does: low + (tanh(z) + 1) / 2 (high - low).
+A ``policy.pt`` of Stable-Baselines3's PPO (``action_head: clipped_gaussian_mean``, srmpc.sb3_ppo)
+holds its mean network with the box map folded in; its action is that mean, which the environment
+clips to the box, as SB3's deterministic ``predict`` does.
 """
 
 from __future__ import annotations
@@ -22,8 +25,16 @@ class PolicyController:
     @classmethod
     def from_policy_file(cls, path: Path, action_low: np.ndarray, action_high: np.ndarray) -> PolicyController:
         """Load a ``policy.pt`` written by training (``srmpc.agents.checkpoint.save_policy``)."""
-        from srmpc.agents.checkpoint import load_actor
+        from srmpc.agents.checkpoint import CheckpointError, load_actor, read_policy_file
 
+        saved = read_policy_file(path)
+        if saved.get("action_head") == "clipped_gaussian_mean":
+            try:
+                weights = [w.double().numpy() for w in saved["weights"]]
+                biases = [b.double().numpy() for b in saved["biases"]]
+                return cls(MlpPolicy(weights, biases, action_low, action_high, squash=False))
+            except (KeyError, AttributeError, ValueError) as error:
+                raise CheckpointError(f"{path}: not a policy file written by stage=train_sb3 ({error})") from error
         actor = load_actor(path)
         return cls(MlpPolicy.from_torch(actor, squash=True, action_low=action_low, action_high=action_high))
 
