@@ -108,7 +108,8 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
 def run_tags(params: Mapping[str, Any]) -> dict[str, str]:
     """``stage``, ``method``, ``traffic`` and ``seed`` of a run, from its composed config, for filtering
     and grouping in the UI. method: the agent (training) or the controller, SRMPC with its variant
-    unless that is the paper's (``srmpc_best_of_two``)."""
+    unless that is the paper's (``srmpc_best_of_two``), a policy controller given another agent's policy file
+    by the agent (``evaluation.policy_path=results/training/ppo_sb3/policy.pt``: ``ppo_sb3``)."""
     def plain(value: Any) -> Any:
         return getattr(value, "value", value)  # an Enum of the structured config -> its value
 
@@ -122,6 +123,10 @@ def run_tags(params: Mapping[str, Any]) -> dict[str, str]:
         variant = plain(srmpc.get("variant"))
         if method == "srmpc" and variant not in (None, "paper"):
             method = f"srmpc_{variant}"
+        policy_path = evaluation.get("policy_path")
+        if method in ("ppo", "ppo_lsi") and policy_path and Path(policy_path).name == "policy.pt":
+            agent = Path(policy_path).parent  # results/training/<agent>/policy.pt or .../<agent>/seed_<n>/policy.pt
+            method = (agent.parent if agent.name.startswith("seed_") else agent).name
     tags = {"stage": stage, "method": method, "traffic": plain(scenario.get("traffic")), "seed": seed}
     return {key: str(value) for key, value in tags.items() if value not in (None, "")}
 

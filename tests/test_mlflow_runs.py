@@ -36,6 +36,13 @@ def test_run_tags_name_method_traffic_and_seed():
     assert run_tags(_params()) == {"stage": "evaluate", "method": "srmpc", "traffic": "light", "seed": "3"}
     assert run_tags(_params(variant="best_of_two"))["method"] == "srmpc_best_of_two"
     assert run_tags(_params(controller="ltv_mpc", variant="best_of_two"))["method"] == "ltv_mpc"
+    sb3 = _params(controller="ppo")
+    sb3["evaluation"]["policy_path"] = "results/training/ppo_sb3/policy.pt"
+    assert run_tags(sb3)["method"] == "ppo_sb3"
+    sb3["evaluation"]["policy_path"] = "results/training/ppo_sb3/seed_2/policy.pt"
+    assert run_tags(sb3)["method"] == "ppo_sb3"
+    sb3["evaluation"]["policy_path"] = None
+    assert run_tags(sb3)["method"] == "ppo"
     assert run_tags(_params(stage="train")) == {"stage": "train", "method": "ppo_lsi", "traffic": "light", "seed": "1"}
 
 
