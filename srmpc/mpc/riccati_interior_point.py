@@ -43,9 +43,22 @@ Termination: inequality residual max|C w - h - t| <= tol, dual residual (station
 dynamics multipliers nu recovered by the backward recursion nu_k = A_k^T nu_{k+1} - grad_x_k L)
 <= tol (1 + scale), mean complementarity mu <= tol.  Returns a status code; anything other than
 ``STATUS_SOLVED`` must be treated as a failed solve.
+
+Code layout: ``solve_ltv_mpc_qp`` reads as the method's steps -- active inequalities, starting
+point, then per iteration ``_residuals`` and ``_convergence_status``, ``_factorize_newton_matrix``
+(D, stage Hessians, Riccati factorization, Schur complement on s), ``_newton_direction`` for the
+predictor and the corrector (``_mehrotra_centering`` between them), ``_step_lengths`` and
+``_update_iterate``.  The steps are compiled functions that receive the solver's arrays grouped
+in the named tuples ``_Qp`` (the QP data), ``_Primal`` (a point or a direction),
+``_Inequalities``, ``_Gradients`` and ``_Newton``; each unpacks what it needs and calls helpers
+on plain arrays that are compiled into it (``inline="always"``).  Tuples passed into inlined
+helpers, or compiled calls out of a step, leave numba reference-count updates on every array per
+call that its pruning pass cannot remove (they cost about 15% of the solve time).
 """
 
 from __future__ import annotations
+
+from collections import namedtuple
 
 import numba
 import numpy as np
@@ -71,6 +84,37 @@ CHOLESKY_PIVOT_FLOOR = 1e-15
 
 _LATERAL = 1
 _SPEED = 3
+_ITERATING = -1
+"""``_convergence_status`` of a point that is neither solved nor broken."""
+
+_Qp = namedtuple("_Qp", ["last_input", "state_matrices", "input_matrices", "affine_offsets",
+                         "tracking_reference", "coefficients", "row_lower", "sigma_upper",
+                         "n_observed", "state_weight_hessian", "input_weight_hessian",
+                         "rate_hessian", "slack_weights", "bounds"])
+"""The QP data: ``solve_ltv_mpc_qp``'s arguments of the same names (shapes there)."""
+_Primal = namedtuple("_Primal", ["states", "inputs", "slacks", "sigmas"])
+"""A primal point w or direction dw: x (N + 1, 4), u (N, 2), s (V,), sigma (N, V)."""
+_Inequalities = namedtuple("_Inequalities", [
+    "offsets", "active", "has_sigma", "n_active", "values", "t", "z", "d", "residuals", "gamma",
+    "dt", "dz", "dt_aff", "dz_aff", "zero_rows", "zero_bounds"])
+"""The m inequalities C w >= h: group starts (``_offsets``), which exist (active (m,), has_sigma
+(N, V), their count n_active), then vectors (m,): a^T w - b, slacks t, multipliers z, D = z / t,
+r_p = a^T w - b - t, gamma, the step (dt, dz) and the predictor's (dt_aff, dz_aff); zero_rows
+(N, V) and zero_bounds (8,) make ``_constraint_values`` of a direction give C dw."""
+_Gradients = namedtuple("_Gradients", ["states", "inputs", "slacks", "sigmas", "model_states",
+                                       "model_inputs", "model_slacks", "nu", "nu_next"])
+"""grad f on x_1..N (N, 4), u (N, 2), s (V,), sigma (N, V); the model gradient grad f - C^T gamma
+with each sigma eliminated on x (N, 4), u (N, 2), s (V,); scratch nu_k, nu_{k+1} (4,)."""
+_Newton = namedtuple("_Newton", [
+    "state_hessians", "input_hessians", "row_weight", "sigma_hessian", "slack_hessian",
+    "cost_to_go", "gains", "input_cholesky", "scaled_cross", "cost_to_go_vector", "feedforward",
+    "column_states", "column_inputs", "column_gradients", "zero_input_gradients", "schur_base",
+    "schur", "zero4", "zero2"])
+"""The factorized Newton matrix: stage Hessians H^x (N, 4, 4), H^u (N, 2), row weights D' and
+sigma Hessians h_sigma (N, V), slack Hessians H_s (V,); the Riccati factorization (see
+``_riccati_factorize``) and its solve scratch (N + 1, 6), (N, 2); the columns W of w(s) as
+x (V, N + 1, 4), u (V, N, 2) with their gradients (N, 4), (N, 2); H_s + C_s^T W (V, V) and its
+Cholesky copy; zero x_0 (4,) and u_{-1} (2,)."""
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -91,7 +135,7 @@ def _offsets(horizon, n_slots):
             speed_lower, speed_upper, input_lower, input_upper, total)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _constraint_values(states, inputs, slacks, sigmas, coefficients, row_lower, sigma_upper,
                        bounds, offsets, out):
     """out_i = a_i^T w - b_i for every inequality (>= 0 when satisfied)."""
@@ -118,7 +162,95 @@ def _constraint_values(states, inputs, slacks, sigmas, coefficients, row_lower, 
         out[o_slo + j] = slacks[j]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _terminal_cost_to_go(state_hessians, p):
+    """P_N = blockdiag(H^x_N, 0) (6, 6) on (x_N, u_{N-1}) into p[N]."""
+    horizon = state_hessians.shape[0]
+    for a in range(6):
+        for b in range(6):
+            p[horizon, a, b] = 0.0
+    for a in range(4):
+        for b in range(4):
+            p[horizon, a, b] = state_hessians[horizon - 1, a, b]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _stage_input_hessian(b_k, nxt, input_hessians, k, m):
+    """Stage k's m = B^T Pxx + Pux (2, 4) into ``m`` and R^ = H^u_k + B~^T P B~ (2 x 2,
+    symmetric), returned as (r00, r01, r11); ``nxt`` is P_{k+1} (6, 6)."""
+    for i in range(2):
+        for c in range(4):
+            acc = nxt[4 + i, c]
+            for r in range(4):
+                acc += b_k[r, i] * nxt[r, c]
+            m[i, c] = acc
+    # R^ = H^u + m B + B^T Pxu + Puu
+    r00 = input_hessians[k, 0] + nxt[4, 4]
+    r01 = nxt[4, 5]
+    r11 = input_hessians[k, 1] + nxt[5, 5]
+    for r in range(4):
+        r00 += m[0, r] * b_k[r, 0] + b_k[r, 0] * nxt[r, 4]
+        r01 += m[0, r] * b_k[r, 1] + b_k[r, 0] * nxt[r, 5]
+        r11 += m[1, r] * b_k[r, 1] + b_k[r, 1] * nxt[r, 5]
+    return r00, r01, r11
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k):
+    """Stage k's S^ = [m A_k, -2S] (2, 6), Y = L^-1 S^ (2, 6) into ``y`` and K_k = -L^-T Y
+    (2, 6) into gains[k]."""
+    for i in range(2):
+        for c in range(4):
+            acc = 0.0
+            for r in range(4):
+                acc += m[i, r] * a_k[r, c]
+            s_hat[i, c] = acc
+        s_hat[i, 4] = 0.0
+        s_hat[i, 5] = 0.0
+        s_hat[i, 4 + i] = -rate_hessian[i]
+    for c in range(6):
+        y0 = s_hat[0, c] / l00
+        y1 = (s_hat[1, c] - l10 * y0) / l11
+        y[0, c] = y0
+        y[1, c] = y1
+        g1 = -y1 / l11
+        gains[k, 1, c] = g1
+        gains[k, 0, c] = -(y0 + l10 * g1) / l00
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _stage_cost_to_go(nxt, a_k, state_hessians, k, rate_hessian, y, pa, cur):
+    """P_k = blockdiag(H^x_k + A_k^T Pxx A_k, 2S) - Y^T Y (6, 6) into ``cur`` from P_{k+1} =
+    ``nxt`` (H^x_k is state_hessians[k - 1])."""
+    for r in range(4):
+        for c in range(4):
+            acc = 0.0
+            for t in range(4):
+                acc += nxt[r, t] * a_k[t, c]
+            pa[r, c] = acc
+    for r in range(4):
+        for c in range(4):
+            acc = state_hessians[k - 1, r, c]
+            for t in range(4):
+                acc += a_k[t, r] * pa[t, c]
+            cur[r, c] = acc
+    for r in range(4):
+        cur[r, 4] = 0.0
+        cur[r, 5] = 0.0
+        cur[4, r] = 0.0
+        cur[5, r] = 0.0
+    cur[4, 4] = rate_hessian[0]
+    cur[5, 5] = rate_hessian[1]
+    cur[4, 5] = 0.0
+    cur[5, 4] = 0.0
+    for r in range(6):
+        for c in range(r, 6):
+            value = cur[r, c] - y[0, r] * y[0, c] - y[1, r] * y[1, c]
+            cur[r, c] = value
+            cur[c, r] = value
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hessians,
                        rate_hessian, cost_to_go, gains, input_cholesky, scaled_cross):
     """Backward Riccati recursion on the augmented state (x_k, u_{k-1}).
@@ -135,12 +267,7 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
     """
     horizon = state_matrices.shape[0]
     p = cost_to_go
-    for a in range(6):
-        for b in range(6):
-            p[horizon, a, b] = 0.0
-    for a in range(4):
-        for b in range(4):
-            p[horizon, a, b] = state_hessians[horizon - 1, a, b]
+    _terminal_cost_to_go(state_hessians, p)
     m = np.empty((2, 4))
     s_hat = np.empty((2, 6))
     pa = np.empty((4, 4))
@@ -148,21 +275,7 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
         nxt = p[k + 1]
         a_k = state_matrices[k]
         b_k = input_matrices[k]
-        # m = B^T Pxx + Pux
-        for i in range(2):
-            for c in range(4):
-                acc = nxt[4 + i, c]
-                for r in range(4):
-                    acc += b_k[r, i] * nxt[r, c]
-                m[i, c] = acc
-        # R^ = H^u + m B + B^T Pxu + Puu
-        r00 = input_hessians[k, 0] + nxt[4, 4]
-        r01 = nxt[4, 5]
-        r11 = input_hessians[k, 1] + nxt[5, 5]
-        for r in range(4):
-            r00 += m[0, r] * b_k[r, 0] + b_k[r, 0] * nxt[r, 4]
-            r01 += m[0, r] * b_k[r, 1] + b_k[r, 0] * nxt[r, 5]
-            r11 += m[1, r] * b_k[r, 1] + b_k[r, 1] * nxt[r, 5]
+        r00, r01, r11 = _stage_input_hessian(b_k, nxt, input_hessians, k, m)
         # R^ = L L^T (2x2 Cholesky; explicit inverses lose accuracy when R^ is ill-conditioned)
         if not r00 > 0.0:
             return False
@@ -175,71 +288,21 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
         input_cholesky[k, 0] = l00
         input_cholesky[k, 1] = l10
         input_cholesky[k, 2] = l11
-        # S^ = [m A, -2S]
-        for i in range(2):
-            for c in range(4):
-                acc = 0.0
-                for r in range(4):
-                    acc += m[i, r] * a_k[r, c]
-                s_hat[i, c] = acc
-            s_hat[i, 4] = 0.0
-            s_hat[i, 5] = 0.0
-            s_hat[i, 4 + i] = -rate_hessian[i]
-        # Y = L^-1 S^,  K = -L^-T Y
         y = scaled_cross[k]
-        for c in range(6):
-            y0 = s_hat[0, c] / l00
-            y1 = (s_hat[1, c] - l10 * y0) / l11
-            y[0, c] = y0
-            y[1, c] = y1
-            g1 = -y1 / l11
-            gains[k, 1, c] = g1
-            gains[k, 0, c] = -(y0 + l10 * g1) / l00
+        _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k)
         if k == 0:
             break
-        # P_k = blockdiag(H^x_k + A^T Pxx A, 2S) + S^^T K
         cur = p[k]
-        for r in range(4):
-            for c in range(4):
-                acc = 0.0
-                for t in range(4):
-                    acc += nxt[r, t] * a_k[t, c]
-                pa[r, c] = acc
-        for r in range(4):
-            for c in range(4):
-                acc = state_hessians[k - 1, r, c]
-                for t in range(4):
-                    acc += a_k[t, r] * pa[t, c]
-                cur[r, c] = acc
-        for r in range(4):
-            cur[r, 4] = 0.0
-            cur[r, 5] = 0.0
-            cur[4, r] = 0.0
-            cur[5, r] = 0.0
-        cur[4, 4] = rate_hessian[0]
-        cur[5, 5] = rate_hessian[1]
-        cur[4, 5] = 0.0
-        cur[5, 4] = 0.0
-        for r in range(6):
-            for c in range(r, 6):
-                value = cur[r, c] - y[0, r] * y[0, c] - y[1, r] * y[1, c]
-                cur[r, c] = value
-                cur[c, r] = value
+        _stage_cost_to_go(nxt, a_k, state_hessians, k, rate_hessian, y, pa, cur)
     return True
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _riccati_solve(state_matrices, input_matrices, affine_offsets, state_gradients,
-                   input_gradients, initial_state, initial_input, cost_to_go, gains,
-                   input_cholesky, scaled_cross, homogeneous, cost_to_go_vector, feedforward,
-                   states, inputs):
-    """Minimize the LQ model with the factorization of ``_riccati_factorize``.
-
-    Gradients: g^x_k on x_k (k = 1..N, row k - 1), g^u_k on u_k.  With ``homogeneous`` the
-    offsets c_k and the initial (x_0, u_{-1}) are taken as zero (columns of W).
-    Backward: v = P_{k+1} (c_k, 0) + p_{k+1}, r^ = g^u_k + B^T v_x + v_u, e = L^-1 r^,
-    k_k = -L^-T e, p_k = (g^x_k + A^T v_x, 0) - Y_k^T e.  Forward: u_k = K_k (x_k, u_{k-1}) + k_k.
-    """
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _riccati_backward(state_matrices, input_matrices, affine_offsets, state_gradients,
+                      input_gradients, cost_to_go, input_cholesky, scaled_cross, homogeneous,
+                      cost_to_go_vector, feedforward):
+    """Backward pass of ``_riccati_solve``: cost-to-go vectors p_k (N + 1, 6) and feedforward
+    inputs k_k (N, 2)."""
     horizon = state_matrices.shape[0]
     p = cost_to_go_vector
     for a in range(6):
@@ -279,6 +342,14 @@ def _riccati_solve(state_matrices, input_matrices, affine_offsets, state_gradien
             p[k, c] = acc - y[0, c] * e0 - y[1, c] * e1
         p[k, 4] = -y[0, 4] * e0 - y[1, 4] * e1
         p[k, 5] = -y[0, 5] * e0 - y[1, 5] * e1
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _riccati_forward(state_matrices, input_matrices, affine_offsets, initial_state,
+                     initial_input, gains, homogeneous, feedforward, states, inputs):
+    """Forward pass of ``_riccati_solve``: u_k = K_k (x_k, u_{k-1}) + k_k and the dynamics from
+    (x_0, u_{-1}); writes states (N + 1, 4) and inputs (N, 2)."""
+    horizon = state_matrices.shape[0]
     augmented = np.empty(6)
     for a in range(4):
         augmented[a] = 0.0 if homogeneous else initial_state[a]
@@ -305,7 +376,26 @@ def _riccati_solve(state_matrices, input_matrices, affine_offsets, state_gradien
         augmented[5] = inputs[k, 1]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _riccati_solve(state_matrices, input_matrices, affine_offsets, state_gradients,
+                   input_gradients, initial_state, initial_input, cost_to_go, gains,
+                   input_cholesky, scaled_cross, homogeneous, cost_to_go_vector, feedforward,
+                   states, inputs):
+    """Minimize the LQ model with the factorization of ``_riccati_factorize``.
+
+    Gradients: g^x_k on x_k (k = 1..N, row k - 1), g^u_k on u_k.  With ``homogeneous`` the
+    offsets c_k and the initial (x_0, u_{-1}) are taken as zero (columns of W).
+    Backward: v = P_{k+1} (c_k, 0) + p_{k+1}, r^ = g^u_k + B^T v_x + v_u, e = L^-1 r^,
+    k_k = -L^-T e, p_k = (g^x_k + A^T v_x, 0) - Y_k^T e.  Forward: u_k = K_k (x_k, u_{k-1}) + k_k.
+    """
+    _riccati_backward(state_matrices, input_matrices, affine_offsets, state_gradients,
+                      input_gradients, cost_to_go, input_cholesky, scaled_cross, homogeneous,
+                      cost_to_go_vector, feedforward)
+    _riccati_forward(state_matrices, input_matrices, affine_offsets, initial_state,
+                     initial_input, gains, homogeneous, feedforward, states, inputs)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _cholesky_solve_in_place(matrix, rhs, n):
     """Solve matrix[:n, :n] x = rhs[:n] (SPD) in place; False if not positive definite."""
     for j in range(n):
@@ -334,7 +424,7 @@ def _cholesky_solve_in_place(matrix, rhs, n):
     return True
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _objective_gradient(states, inputs, slacks, sigmas, tracking_reference, last_input,
                         state_weight_hessian, input_weight_hessian, rate_hessian, slack_weights,
                         n_observed, has_sigma, state_gradient, input_gradient, slack_gradient,
@@ -360,6 +450,556 @@ def _objective_gradient(states, inputs, slacks, sigmas, tracking_reference, last
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _active_inequalities(sigma_upper, n_observed, offsets, horizon, n_slots):
+    """Which inequalities exist: rows and slacks of observed slots, safety-slack boxes wider than
+    ``SIGMA_BOX_MIN_WIDTH``, all state and input bounds.
+
+    Returns (active (m,) bool, has_sigma (N, V) bool, n_active).
+    """
+    (o_row, o_slo, o_sglo, o_sghi, o_ylo, _, _, _, _, _, m) = offsets
+    active = np.zeros(m, dtype=np.bool_)
+    has_sigma = np.zeros((horizon, n_slots), dtype=np.bool_)
+    for j in range(n_observed):
+        active[o_slo + j] = True
+        for k in range(horizon):
+            i = k * n_slots + j
+            active[o_row + i] = True
+            if sigma_upper[k, j] > SIGMA_BOX_MIN_WIDTH:
+                has_sigma[k, j] = True
+                active[o_sglo + i] = True
+                active[o_sghi + i] = True
+    for i in range(o_ylo, m):
+        active[i] = True
+    n_active = 0
+    for i in range(m):
+        if active[i]:
+            n_active += 1
+    return active, has_sigma, n_active
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _starting_point(qp, measured_state, initial_inputs, has_sigma, point):
+    """Write the starting point w_0 into ``point``.
+
+    Inputs: ``initial_inputs`` (N, 2) clipped into their box, ``INITIAL_INPUT_MARGIN`` of its
+    width from the bounds; states rolled out from x_hat through the linear dynamics (so every
+    iterate satisfies them exactly and the Newton steps are homogeneous in them); s = 0;
+    sigma = sigma_hi / 2 where its box is open, else 0.
+    """
+    states, inputs, slacks, sigmas = point
+    state_matrices, input_matrices, affine_offsets = (qp.state_matrices, qp.input_matrices,
+                                                      qp.affine_offsets)
+    bounds = qp.bounds
+    sigma_upper = qp.sigma_upper
+    horizon = state_matrices.shape[0]
+    n_slots = qp.coefficients.shape[1]
+    for k in range(horizon):
+        for i in range(2):
+            lo = bounds[4 + i]
+            hi = bounds[6 + i]
+            margin = INITIAL_INPUT_MARGIN * (hi - lo)
+            inputs[k, i] = min(max(initial_inputs[k, i], lo + margin), hi - margin)
+    for a in range(4):
+        states[0, a] = measured_state[a]
+    for k in range(horizon):
+        for r in range(4):
+            acc = affine_offsets[k, r]
+            for c in range(4):
+                acc += state_matrices[k, r, c] * states[k, c]
+            acc += input_matrices[k, r, 0] * inputs[k, 0] + input_matrices[k, r, 1] * inputs[k, 1]
+            states[k + 1, r] = acc
+    for j in range(n_slots):
+        slacks[j] = 0.0
+        for k in range(horizon):
+            sigmas[k, j] = 0.5 * sigma_upper[k, j] if has_sigma[k, j] else 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _starting_inequalities(qp, point, offsets, active, has_sigma, n_active):
+    """The ``_Inequalities`` at the starting point: a^T w_0 - b, t_0 = max(a^T w_0 - b,
+    ``INITIAL_SLACK``) and z_0 = ``INITIAL_MULTIPLIER`` where active (t = 1, z = 0 elsewhere);
+    the other vectors allocated."""
+    horizon, n_slots = qp.state_matrices.shape[0], qp.coefficients.shape[1]
+    m = offsets[10]
+    values = np.empty(m)
+    _constraint_values(point.states, point.inputs, point.slacks, point.sigmas, qp.coefficients,
+                       qp.row_lower, qp.sigma_upper, qp.bounds, offsets, values)
+    t = np.ones(m)
+    z = np.zeros(m)
+    for i in range(m):
+        if active[i]:
+            t[i] = max(values[i], INITIAL_SLACK)
+            z[i] = INITIAL_MULTIPLIER
+    return _Inequalities(offsets, active, has_sigma, n_active, values, t, z, np.empty(m),
+                         np.zeros(m), np.empty(m), np.zeros(m), np.zeros(m), np.zeros(m),
+                         np.zeros(m), np.zeros((horizon, n_slots)), np.zeros(8))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _allocate_workspace(horizon, n_slots):
+    """The iteration's arrays: (``_Gradients``, ``_Newton``, the direction as ``_Primal``)."""
+    gradients = _Gradients(np.empty((horizon, 4)), np.empty((horizon, 2)), np.zeros(n_slots),
+                           np.zeros((horizon, n_slots)), np.empty((horizon, 4)),
+                           np.empty((horizon, 2)), np.empty(n_slots), np.empty(4), np.empty(4))
+    newton = _Newton(
+        np.empty((horizon, 4, 4)), np.empty((horizon, 2)), np.zeros((horizon, n_slots)),
+        np.ones((horizon, n_slots)), np.empty(n_slots), np.empty((horizon + 1, 6, 6)),
+        np.empty((horizon, 2, 6)), np.empty((horizon, 3)), np.empty((horizon, 2, 6)),
+        np.empty((horizon + 1, 6)), np.empty((horizon, 2)), np.empty((n_slots, horizon + 1, 4)),
+        np.empty((n_slots, horizon, 2)), np.zeros((horizon, 4)), np.zeros((horizon, 2)),
+        np.empty((n_slots, n_slots)), np.empty((n_slots, n_slots)), np.zeros(4), np.zeros(2))
+    direction = _Primal(np.empty((horizon + 1, 4)), np.empty((horizon, 2)), np.zeros(n_slots),
+                        np.zeros((horizon, n_slots)))
+    return gradients, newton, direction
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _primal_residual_and_complementarity(active, values, t, z, residuals, n_active):
+    """r_p = a^T w - b - t (m,) into ``residuals``; returns (max |r_p|, mu = t^T z / n_active)
+    over the active inequalities."""
+    primal_residual = 0.0
+    mu = 0.0
+    for i in range(values.shape[0]):
+        if active[i]:
+            residuals[i] = values[i] - t[i]
+            primal_residual = max(primal_residual, abs(residuals[i]))
+            mu += t[i] * z[i]
+    mu /= n_active
+    return primal_residual, mu
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _dual_residual_states_inputs(offsets, z, n_observed, coefficients, state_matrices,
+                                 input_matrices, state_gradient, input_gradient, nu, nu_next):
+    """Stationarity in x and u: with nu_k = A_k^T nu_{k+1} - grad_x_k L (4,) making the x rows
+    exact, returns (max |grad_u L|, its scale max(1, |terms|)) over the stages."""
+    (o_row, _, _, _, o_ylo, o_yhi, o_vlo, o_vhi, o_ulo, o_uhi, _) = offsets
+    horizon = state_matrices.shape[0]
+    n_slots = coefficients.shape[1]
+    dual_residual = 0.0
+    dual_scale = 1.0
+    for a in range(4):
+        nu_next[a] = 0.0
+    for k in range(horizon, 0, -1):
+        for a in range(4):
+            nu[a] = -state_gradient[k - 1, a]
+            dual_scale = max(dual_scale, abs(nu[a]))
+        for j in range(n_observed):
+            zr = z[o_row + (k - 1) * n_slots + j]
+            for a in range(3):
+                nu[a] += zr * coefficients[k - 1, j, a]
+        nu[_LATERAL] += z[o_ylo + k - 1] - z[o_yhi + k - 1]
+        nu[_SPEED] += z[o_vlo + k - 1] - z[o_vhi + k - 1]
+        if k < horizon:
+            a_k = state_matrices[k]
+            for c in range(4):
+                acc = 0.0
+                for r in range(4):
+                    acc += a_k[r, c] * nu_next[r]
+                nu[c] += acc
+        for a in range(4):
+            nu_next[a] = nu[a]
+        kk = k - 1
+        b_k = input_matrices[kk]
+        for i in range(2):
+            coupling = 0.0
+            for r in range(4):
+                coupling += b_k[r, i] * nu[r]
+            multiplier = z[o_ulo + 2 * kk + i] - z[o_uhi + 2 * kk + i]
+            grad = input_gradient[kk, i]
+            dual_scale = max(dual_scale, abs(grad), abs(coupling), abs(multiplier))
+            dual_residual = max(dual_residual, abs(grad - multiplier - coupling))
+    return dual_residual, dual_scale
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _dual_residual_slacks(offsets, z, has_sigma, n_observed, sigma_gradient, slack_gradient,
+                          dual_residual, dual_scale):
+    """``(dual_residual, dual_scale)`` extended by stationarity in sigma (N, V) and s (V,) of the
+    observed slots."""
+    (o_row, o_slo, o_sglo, o_sghi, _, _, _, _, _, _, _) = offsets
+    horizon, n_slots = has_sigma.shape
+    for j in range(n_observed):
+        multiplier = z[o_slo + j]
+        for k in range(horizon):
+            i = k * n_slots + j
+            multiplier += z[o_row + i]
+            if has_sigma[k, j]:
+                mult_sigma = z[o_row + i] + z[o_sglo + i] - z[o_sghi + i]
+                grad_sigma = sigma_gradient[k, j]
+                dual_scale = max(dual_scale, abs(grad_sigma), abs(mult_sigma))
+                dual_residual = max(dual_residual, abs(grad_sigma - mult_sigma))
+        dual_scale = max(dual_scale, abs(slack_gradient[j]), abs(multiplier))
+        dual_residual = max(dual_residual, abs(slack_gradient[j] - multiplier))
+    return dual_residual, dual_scale
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _residuals(qp, point, ineq, gradients):
+    """Step: residuals at the current point w.
+
+    Writes a^T w - b into ``ineq.values``, grad f into ``gradients`` and r_p into
+    ``ineq.residuals``.  Returns (primal residual max |r_p|, complementarity mu, dual residual,
+    dual scale) as in the module doc's termination rule.
+    """
+    states, inputs, slacks, sigmas = point
+    (last_input, state_matrices, input_matrices, _, tracking_reference, coefficients, row_lower,
+     sigma_upper, n_observed, state_weight_hessian, input_weight_hessian, rate_hessian,
+     slack_weights, bounds) = qp
+    (offsets, active, has_sigma, n_active, values, t, z, _, residuals, _, _, _, _, _, _,
+     _) = ineq
+    (state_gradient, input_gradient, slack_gradient, sigma_gradient, _, _, _, nu,
+     nu_next) = gradients
+    _constraint_values(states, inputs, slacks, sigmas, coefficients, row_lower, sigma_upper,
+                       bounds, offsets, values)
+    _objective_gradient(states, inputs, slacks, sigmas, tracking_reference, last_input,
+                        state_weight_hessian, input_weight_hessian, rate_hessian, slack_weights,
+                        n_observed, has_sigma, state_gradient, input_gradient, slack_gradient,
+                        sigma_gradient)
+    primal_residual, mu = _primal_residual_and_complementarity(active, values, t, z, residuals,
+                                                               n_active)
+    dual_residual, dual_scale = _dual_residual_states_inputs(
+        offsets, z, n_observed, coefficients, state_matrices, input_matrices, state_gradient,
+        input_gradient, nu, nu_next)
+    dual_residual, dual_scale = _dual_residual_slacks(offsets, z, has_sigma, n_observed,
+                                                      sigma_gradient, slack_gradient,
+                                                      dual_residual, dual_scale)
+    return primal_residual, mu, dual_residual, dual_scale
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _convergence_status(primal_residual, mu, dual_residual, dual_scale, tolerance):
+    """``STATUS_NUMERICAL_ERROR`` if mu or the dual residual is not finite, ``STATUS_SOLVED`` if
+    all three residuals are within ``tolerance`` (dual: relative to its scale), else
+    ``_ITERATING``."""
+    if not (np.isfinite(mu) and np.isfinite(dual_residual)):
+        return STATUS_NUMERICAL_ERROR
+    if (primal_residual <= tolerance and mu <= tolerance
+            and dual_residual <= tolerance * dual_scale):
+        return STATUS_SOLVED
+    return _ITERATING
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _barrier_weights(active, t, z, d):
+    """D = z / t (m,) on the active inequalities, 0 elsewhere, into ``d``."""
+    for i in range(d.shape[0]):
+        d[i] = z[i] / t[i] if active[i] else 0.0
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _stage_hessians(offsets, d, has_sigma, n_observed, coefficients, state_weight_hessian,
+                    input_weight_hessian, rate_hessian, w_s2, row_weight, sigma_hessian,
+                    state_hessians, input_hessians):
+    """Stage Hessians of the Newton matrix H + C^T D C with each sigma eliminated from its row.
+
+    Writes h_sigma = 2 w_s2 + D_lo + D_hi and the row weight D' = D_r h_sigma / (D_r + h_sigma)
+    (D_r where sigma is fixed) (N, V), H^x_k = 2Q + bound and row terms (N, 4, 4) and
+    H^u_k = 2R + 2S + bound terms (N, 2).
+    """
+    (o_row, _, o_sglo, o_sghi, o_ylo, o_yhi, o_vlo, o_vhi, o_ulo, o_uhi, _) = offsets
+    horizon, n_slots = has_sigma.shape
+    for k in range(horizon):
+        for j in range(n_slots):
+            i = k * n_slots + j
+            d_row = d[o_row + i]
+            if has_sigma[k, j]:
+                h_sigma = 2.0 * w_s2 + d[o_sglo + i] + d[o_sghi + i]
+                sigma_hessian[k, j] = h_sigma
+                row_weight[k, j] = d_row * h_sigma / (d_row + h_sigma)
+            else:
+                row_weight[k, j] = d_row
+        h = state_hessians[k]
+        for r in range(4):
+            for c in range(4):
+                h[r, c] = 0.0
+            h[r, r] = state_weight_hessian[r]
+        h[_LATERAL, _LATERAL] += d[o_ylo + k] + d[o_yhi + k]
+        h[_SPEED, _SPEED] += d[o_vlo + k] + d[o_vhi + k]
+        for j in range(n_observed):
+            weight = row_weight[k, j]
+            for r in range(3):
+                for c in range(3):
+                    h[r, c] += weight * coefficients[k, j, r] * coefficients[k, j, c]
+        for i in range(2):
+            input_hessians[k, i] = (input_weight_hessian[i] + rate_hessian[i]
+                                    + d[o_ulo + 2 * k + i] + d[o_uhi + 2 * k + i])
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _slack_column_gradient(j, d_slack, w_c2, coefficients, row_weight, slack_hessian,
+                           column_gradients):
+    """Slot j's H_s,j = 2 w_c2 + D_s,j + sum_k D'_kj and the gradient D'_kj n_kj (N, 4; last
+    column 0) of the LQ model whose solution is the column W_j of w(s)."""
+    slack_hessian[j] = 2.0 * w_c2 + d_slack
+    for k in range(row_weight.shape[0]):
+        weight = row_weight[k, j]
+        slack_hessian[j] += weight
+        for a in range(3):
+            column_gradients[k, a] = weight * coefficients[k, j, a]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _slack_schur_complement(n_observed, coefficients, row_weight, slack_hessian, column_states,
+                            schur_base):
+    """H_s + C_s^T W (V_obs x V_obs, C_s^T W_j = sum_k D'_ki n_ki . Wx_j,k) into
+    ``schur_base``."""
+    for i in range(n_observed):
+        for j in range(n_observed):
+            acc = slack_hessian[i] if i == j else 0.0
+            for k in range(row_weight.shape[0]):
+                weight = row_weight[k, i]
+                for a in range(3):
+                    acc += weight * coefficients[k, i, a] * column_states[j, k + 1, a]
+            schur_base[i, j] = acc
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _factorize_newton_matrix(qp, ineq, newton):
+    """Step: factorize the Newton matrix at the current point -- D, the stage Hessians, the
+    Riccati recursion, the columns W of w(s) and the Schur complement on s.  Returns False if
+    some R^ is not (numerically) positive definite."""
+    (_, state_matrices, input_matrices, affine_offsets, _, coefficients, _, _, n_observed,
+     state_weight_hessian, input_weight_hessian, rate_hessian, slack_weights, _) = qp
+    (offsets, active, has_sigma, _, _, t, z, d, _, _, _, _, _, _, _, _) = ineq
+    (state_hessians, input_hessians, row_weight, sigma_hessian, slack_hessian, cost_to_go,
+     gains, input_cholesky, scaled_cross, cost_to_go_vector, feedforward, column_states,
+     column_inputs, column_gradients, zero_input_gradients, schur_base, _, zero4,
+     zero2) = newton
+    _barrier_weights(active, t, z, d)
+    _stage_hessians(offsets, d, has_sigma, n_observed, coefficients, state_weight_hessian,
+                    input_weight_hessian, rate_hessian, slack_weights[3], row_weight,
+                    sigma_hessian, state_hessians, input_hessians)
+    if not _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hessians,
+                              rate_hessian, cost_to_go, gains, input_cholesky, scaled_cross):
+        return False
+    for j in range(n_observed):
+        _slack_column_gradient(j, d[offsets[1] + j], slack_weights[1], coefficients,
+                               row_weight, slack_hessian, column_gradients)
+        _riccati_solve(state_matrices, input_matrices, affine_offsets, column_gradients,
+                       zero_input_gradients, zero4, zero2, cost_to_go, gains, input_cholesky,
+                       scaled_cross, True, cost_to_go_vector, feedforward, column_states[j],
+                       column_inputs[j])
+    _slack_schur_complement(n_observed, coefficients, row_weight, slack_hessian, column_states,
+                            schur_base)
+    return True
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _model_gamma(phase, sigma_centering, mu, active, t, d, residuals, dt_aff, dz_aff, gamma):
+    """gamma (m,) of the Newton model: -D r_p for the predictor (phase 0), plus
+    (sigma mu - dt_aff dz_aff) / t for the corrector (phase 1); 0 on inactive rows."""
+    for i in range(gamma.shape[0]):
+        if not active[i]:
+            gamma[i] = 0.0
+        elif phase == 0:
+            gamma[i] = -d[i] * residuals[i]
+        else:
+            gamma[i] = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) / t[i]
+                        - d[i] * residuals[i])
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _model_gradient(offsets, gamma, d, has_sigma, n_observed, coefficients, sigma_hessian,
+                    state_gradient, input_gradient, slack_gradient, sigma_gradient,
+                    model_state_gradient, model_input_gradient, model_slack_gradient):
+    """Model gradient grad f - C^T gamma on x (N, 4), u (N, 2) and s (V,), with each sigma
+    eliminated from its row (row gradient -(gamma_r h_sigma + D_r g_sigma) / (D_r + h_sigma))."""
+    (o_row, o_slo, o_sglo, o_sghi, o_ylo, o_yhi, o_vlo, o_vhi, o_ulo, o_uhi, _) = offsets
+    horizon, n_slots = has_sigma.shape
+    for k in range(horizon):
+        for a in range(4):
+            model_state_gradient[k, a] = state_gradient[k, a]
+        model_state_gradient[k, _LATERAL] += -gamma[o_ylo + k] + gamma[o_yhi + k]
+        model_state_gradient[k, _SPEED] += -gamma[o_vlo + k] + gamma[o_vhi + k]
+        for i in range(2):
+            model_input_gradient[k, i] = (input_gradient[k, i] - gamma[o_ulo + 2 * k + i]
+                                          + gamma[o_uhi + 2 * k + i])
+    for j in range(n_observed):
+        model_slack_gradient[j] = slack_gradient[j] - gamma[o_slo + j]
+        for k in range(horizon):
+            i = k * n_slots + j
+            if has_sigma[k, j]:
+                h_sigma = sigma_hessian[k, j]
+                g_sigma = sigma_gradient[k, j] - gamma[o_sglo + i] + gamma[o_sghi + i]
+                d_row = d[o_row + i]
+                g_row = -(gamma[o_row + i] * h_sigma + d_row * g_sigma) / (d_row + h_sigma)
+            else:
+                g_row = -gamma[o_row + i]
+            model_slack_gradient[j] += g_row
+            for a in range(3):
+                model_state_gradient[k, a] += g_row * coefficients[k, j, a]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _slack_schur_rhs(n_observed, coefficients, row_weight, model_slack_gradient, step_states,
+                     schur_base, schur, step_slacks):
+    """-(g_s + C_s^T dw_0) (V_obs,) into ``step_slacks`` and a fresh copy of H_s + C_s^T W into
+    ``schur`` (the Cholesky solve overwrites both); dw_0 = ``step_states`` for s = 0."""
+    for i in range(n_observed):
+        acc = model_slack_gradient[i]
+        for k in range(row_weight.shape[0]):
+            weight = row_weight[k, i]
+            for a in range(3):
+                acc += weight * coefficients[k, i, a] * step_states[k + 1, a]
+        step_slacks[i] = -acc
+        for j in range(n_observed):
+            schur[i, j] = schur_base[i, j]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _add_slack_columns(n_observed, step_slacks, column_states, column_inputs, step_states,
+                       step_inputs):
+    """dw = dw_0 + W ds: adds the columns W_j (x (N + 1, 4), u (N, 2)) times ds_j."""
+    for j in range(n_observed):
+        s_j = step_slacks[j]
+        for k in range(step_inputs.shape[0]):
+            for a in range(4):
+                step_states[k + 1, a] += s_j * column_states[j, k + 1, a]
+            step_inputs[k, 0] += s_j * column_inputs[j, k, 0]
+            step_inputs[k, 1] += s_j * column_inputs[j, k, 1]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _safety_slack_direction(offsets, gamma, d, has_sigma, n_observed, coefficients,
+                            sigma_gradient, sigma_hessian, step_states, step_slacks,
+                            step_sigmas):
+    """dsigma (N, V) from its row: -(D_r rho + g_sigma - gamma_r) / (D_r + h_sigma), with
+    rho = n^T dx[0:3] + ds the row's change; left 0 where sigma is fixed."""
+    (o_row, _, o_sglo, o_sghi, _, _, _, _, _, _, _) = offsets
+    horizon, n_slots = has_sigma.shape
+    for k in range(horizon):
+        for j in range(n_observed):
+            if has_sigma[k, j]:
+                i = k * n_slots + j
+                x = step_states[k + 1]
+                rho = (coefficients[k, j, 0] * x[0] + coefficients[k, j, 1] * x[1]
+                       + coefficients[k, j, 2] * x[2] + step_slacks[j])
+                g_sigma = sigma_gradient[k, j] - gamma[o_sglo + i] + gamma[o_sghi + i]
+                d_row = d[o_row + i]
+                step_sigmas[k, j] = -(d_row * rho + g_sigma - gamma[o_row + i]) / (
+                    d_row + sigma_hessian[k, j])
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _inequality_direction(phase, sigma_centering, mu, active, t, z, d, direction_values,
+                          residuals, dt_aff, dz_aff, dt, dz):
+    """dt = C dw + r_p and dz = (sigma mu - dt_aff dz_aff) / t - z - D dt (predictor: without the
+    first term) (m,), from ``direction_values`` = C dw.  Returns the largest primal and dual
+    steps to the boundary t = 0, z = 0 (inf if unbounded)."""
+    step_primal = np.inf
+    step_dual = np.inf
+    for i in range(dt.shape[0]):
+        if not active[i]:
+            continue
+        dti = direction_values[i] + residuals[i]
+        if phase == 0:
+            dzi = -z[i] - d[i] * dti
+        else:
+            dzi = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) / t[i]
+                   - z[i] - d[i] * dti)
+        dt[i] = dti
+        dz[i] = dzi
+        if dti < 0.0:
+            step_primal = min(step_primal, -t[i] / dti)
+        if dzi < 0.0:
+            step_dual = min(step_dual, -z[i] / dzi)
+    return step_primal, step_dual
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _newton_direction(phase, sigma_centering, mu, qp, ineq, gradients, newton, direction):
+    """Step: one Newton direction with the factorized Newton matrix -- the predictor (phase 0)
+    or the corrector (phase 1, centering ``sigma_centering`` mu).
+
+    Writes dw into ``direction`` and (dt, dz) into ``ineq``.  Returns (ok, largest primal step,
+    largest dual step); ok is False if the Schur complement on s is not positive definite or a
+    step length is NaN.
+    """
+    (_, state_matrices, input_matrices, affine_offsets, _, coefficients, _, _, n_observed, _, _,
+     _, _, _) = qp
+    (offsets, active, has_sigma, _, values, t, z, d, residuals, gamma, dt, dz, dt_aff, dz_aff,
+     zero_rows, zero_bounds) = ineq
+    (_, _, row_weight, sigma_hessian, _, cost_to_go, gains, input_cholesky, scaled_cross,
+     cost_to_go_vector, feedforward, column_states, column_inputs, _, _, schur_base, schur,
+     zero4, zero2) = newton
+    (state_gradient, input_gradient, slack_gradient, sigma_gradient, model_state_gradient,
+     model_input_gradient, model_slack_gradient, _, _) = gradients
+    step_states, step_inputs, step_slacks, step_sigmas = direction
+    _model_gamma(phase, sigma_centering, mu, active, t, d, residuals, dt_aff, dz_aff, gamma)
+    _model_gradient(offsets, gamma, d, has_sigma, n_observed, coefficients, sigma_hessian,
+                    state_gradient, input_gradient, slack_gradient, sigma_gradient,
+                    model_state_gradient, model_input_gradient, model_slack_gradient)
+    _riccati_solve(state_matrices, input_matrices, affine_offsets, model_state_gradient,
+                   model_input_gradient, zero4, zero2, cost_to_go, gains, input_cholesky,
+                   scaled_cross, True, cost_to_go_vector, feedforward, step_states, step_inputs)
+    _slack_schur_rhs(n_observed, coefficients, row_weight, model_slack_gradient, step_states,
+                     schur_base, schur, step_slacks)
+    if not _cholesky_solve_in_place(schur, step_slacks, n_observed):
+        return False, np.inf, np.inf
+    _add_slack_columns(n_observed, step_slacks, column_states, column_inputs, step_states,
+                       step_inputs)
+    _safety_slack_direction(offsets, gamma, d, has_sigma, n_observed, coefficients,
+                            sigma_gradient, sigma_hessian, step_states, step_slacks,
+                            step_sigmas)
+    _constraint_values(step_states, step_inputs, step_slacks, step_sigmas, coefficients,
+                       zero_rows, zero_rows, zero_bounds, offsets, values)
+    step_primal, step_dual = _inequality_direction(phase, sigma_centering, mu, active, t, z, d,
+                                                   values, residuals, dt_aff, dz_aff, dt, dz)
+    if np.isnan(step_primal) or np.isnan(step_dual):
+        return False, step_primal, step_dual
+    return True, step_primal, step_dual
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _mehrotra_centering(ineq, step_primal, step_dual, mu):
+    """Step: keep the predictor's (dt, dz) as (dt_aff, dz_aff) and return Mehrotra's centering
+    sigma = (mu_aff / mu)^3, mu_aff the complementarity after the predictor's step."""
+    (_, active, _, n_active, _, t, z, _, _, _, dt, dz, dt_aff, dz_aff, _, _) = ineq
+    mu_affine = 0.0
+    alpha_primal = min(1.0, step_primal)
+    alpha_dual = min(1.0, step_dual)
+    for i in range(t.shape[0]):
+        if active[i]:
+            dt_aff[i] = dt[i]
+            dz_aff[i] = dz[i]
+            mu_affine += (t[i] + alpha_primal * dt[i]) * (z[i] + alpha_dual * dz[i])
+    mu_affine /= n_active
+    ratio = mu_affine / mu
+    return ratio * ratio * ratio
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _step_lengths(step_primal, step_dual):
+    """(alpha_primal, alpha_dual): ``FRACTION_TO_BOUNDARY`` of the steps to the boundary, at
+    most 1."""
+    return (min(1.0, FRACTION_TO_BOUNDARY * step_primal),
+            min(1.0, FRACTION_TO_BOUNDARY * step_dual))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _update_iterate(point, direction, ineq, alpha_primal, alpha_dual, n_observed):
+    """Step: w += alpha_primal dw and, on the active rows, t += alpha_primal dt and
+    z += alpha_dual dz."""
+    states, inputs, slacks, sigmas = point
+    step_states, step_inputs, step_slacks, step_sigmas = direction
+    (_, active, _, _, _, t, z, _, _, _, dt, dz, _, _, _, _) = ineq
+    for k in range(step_inputs.shape[0]):
+        for a in range(4):
+            states[k + 1, a] += alpha_primal * step_states[k + 1, a]
+        for i in range(2):
+            inputs[k, i] += alpha_primal * step_inputs[k, i]
+        for j in range(n_observed):
+            sigmas[k, j] += alpha_primal * step_sigmas[k, j]
+    for j in range(n_observed):
+        slacks[j] += alpha_primal * step_slacks[j]
+    for i in range(t.shape[0]):
+        if active[i]:
+            t[i] += alpha_primal * dt[i]
+            z[i] += alpha_dual * dz[i]
+
+
+@numba.njit(cache=True, error_model="numpy")
 def solve_ltv_mpc_qp(measured_state, last_input, state_matrices, input_matrices,
                      affine_offsets, tracking_reference, coefficients, row_lower, sigma_upper,
                      n_observed, state_weight_hessian, input_weight_hessian, rate_hessian,
@@ -381,350 +1021,38 @@ def solve_ltv_mpc_qp(measured_state, last_input, state_matrices, input_matrices,
         tolerance: residual and complementarity tolerance (see module doc).
         max_iterations: iteration limit.
     """
-    horizon = state_matrices.shape[0]
-    n_slots = coefficients.shape[1]
+    horizon, n_slots = state_matrices.shape[0], coefficients.shape[1]
+    qp = _Qp(last_input, state_matrices, input_matrices, affine_offsets, tracking_reference,
+             coefficients, row_lower, sigma_upper, n_observed, state_weight_hessian,
+             input_weight_hessian, rate_hessian, slack_weights, bounds)
+    point = _Primal(states, inputs, slacks, sigmas)
     offsets = _offsets(horizon, n_slots)
-    (o_row, o_slo, o_sglo, o_sghi, o_ylo, o_yhi, o_vlo, o_vhi, o_ulo, o_uhi, m) = offsets
-    w_s2 = slack_weights[3]
-    w_c2 = slack_weights[1]
-
-    # which inequalities exist: rows/slacks of observed slots, sigma boxes of positive width
-    active = np.zeros(m, dtype=np.bool_)
-    has_sigma = np.zeros((horizon, n_slots), dtype=np.bool_)
-    for j in range(n_observed):
-        active[o_slo + j] = True
-        for k in range(horizon):
-            i = k * n_slots + j
-            active[o_row + i] = True
-            if sigma_upper[k, j] > SIGMA_BOX_MIN_WIDTH:
-                has_sigma[k, j] = True
-                active[o_sglo + i] = True
-                active[o_sghi + i] = True
-    for i in range(o_ylo, m):
-        active[i] = True
-    n_active = 0
-    for i in range(m):
-        if active[i]:
-            n_active += 1
-
-    # ---- starting point: inputs inside their box, states by the linear dynamics (so every
-    # iterate satisfies the dynamics exactly and the Newton steps are homogeneous in them)
-    for k in range(horizon):
-        for i in range(2):
-            lo = bounds[4 + i]
-            hi = bounds[6 + i]
-            margin = INITIAL_INPUT_MARGIN * (hi - lo)
-            inputs[k, i] = min(max(initial_inputs[k, i], lo + margin), hi - margin)
-    for a in range(4):
-        states[0, a] = measured_state[a]
-    for k in range(horizon):
-        for r in range(4):
-            acc = affine_offsets[k, r]
-            for c in range(4):
-                acc += state_matrices[k, r, c] * states[k, c]
-            acc += input_matrices[k, r, 0] * inputs[k, 0] + input_matrices[k, r, 1] * inputs[k, 1]
-            states[k + 1, r] = acc
-    for j in range(n_slots):
-        slacks[j] = 0.0
-        for k in range(horizon):
-            sigmas[k, j] = 0.5 * sigma_upper[k, j] if has_sigma[k, j] else 0.0
-    values = np.empty(m)
-    _constraint_values(states, inputs, slacks, sigmas, coefficients, row_lower, sigma_upper,
-                       bounds, offsets, values)
-    t = np.ones(m)
-    z = np.zeros(m)
-    for i in range(m):
-        if active[i]:
-            t[i] = max(values[i], INITIAL_SLACK)
-            z[i] = INITIAL_MULTIPLIER
-
-    # ---- work arrays
-    state_hessians = np.empty((horizon, 4, 4))
-    input_hessians = np.empty((horizon, 2))
-    state_gradient = np.empty((horizon, 4))
-    input_gradient = np.empty((horizon, 2))
-    slack_gradient = np.zeros(n_slots)
-    sigma_gradient = np.zeros((horizon, n_slots))
-    model_state_gradient = np.empty((horizon, 4))
-    model_input_gradient = np.empty((horizon, 2))
-    model_slack_gradient = np.empty(n_slots)
-    row_weight = np.zeros((horizon, n_slots))  # D' of each row after eliminating sigma
-    sigma_hessian = np.ones((horizon, n_slots))
-    slack_hessian = np.empty(n_slots)
-    cost_to_go = np.empty((horizon + 1, 6, 6))
-    gains = np.empty((horizon, 2, 6))
-    input_cholesky = np.empty((horizon, 3))
-    scaled_cross = np.empty((horizon, 2, 6))
-    cost_to_go_vector = np.empty((horizon + 1, 6))
-    feedforward = np.empty((horizon, 2))
-    column_states = np.empty((n_slots, horizon + 1, 4))
-    column_inputs = np.empty((n_slots, horizon, 2))
-    column_gradients = np.zeros((horizon, 4))
-    zero_input_gradients = np.zeros((horizon, 2))
-    schur_base = np.empty((n_slots, n_slots))
-    schur = np.empty((n_slots, n_slots))
-    step_states = np.empty((horizon + 1, 4))
-    step_inputs = np.empty((horizon, 2))
-    step_slacks = np.zeros(n_slots)
-    step_sigmas = np.zeros((horizon, n_slots))
-    zero_rows = np.zeros((horizon, n_slots))
-    zero_bounds = np.zeros(8)
-    primal_residuals = np.zeros(m)
-    gamma = np.empty(m)
-    d = np.empty(m)
-    dt = np.zeros(m)
-    dz = np.zeros(m)
-    dt_aff = np.zeros(m)
-    dz_aff = np.zeros(m)
-    nu = np.empty(4)
-    nu_next = np.empty(4)
-    zero4 = np.zeros(4)
-    zero2 = np.zeros(2)
-
+    active, has_sigma, n_active = _active_inequalities(sigma_upper, n_observed, offsets, horizon,
+                                                       n_slots)
+    _starting_point(qp, measured_state, initial_inputs, has_sigma, point)
+    ineq = _starting_inequalities(qp, point, offsets, active, has_sigma, n_active)
+    gradients, newton, direction = _allocate_workspace(horizon, n_slots)
     for iteration in range(max_iterations + 1):
-        # ---------------- residuals at the current point
-        _constraint_values(states, inputs, slacks, sigmas, coefficients, row_lower,
-                           sigma_upper, bounds, offsets, values)
-        _objective_gradient(states, inputs, slacks, sigmas, tracking_reference, last_input,
-                            state_weight_hessian, input_weight_hessian, rate_hessian,
-                            slack_weights, n_observed, has_sigma, state_gradient,
-                            input_gradient, slack_gradient, sigma_gradient)
-        primal_residual = 0.0
-        mu = 0.0
-        for i in range(m):
-            if active[i]:
-                primal_residuals[i] = values[i] - t[i]
-                primal_residual = max(primal_residual, abs(primal_residuals[i]))
-                mu += t[i] * z[i]
-        mu /= n_active
-        # dual residual, with nu_k = A_k^T nu_{k+1} - grad_x_k L making the x rows exact
-        dual_residual = 0.0
-        dual_scale = 1.0
-        for a in range(4):
-            nu_next[a] = 0.0
-        for k in range(horizon, 0, -1):
-            for a in range(4):
-                nu[a] = -state_gradient[k - 1, a]
-                dual_scale = max(dual_scale, abs(nu[a]))
-            for j in range(n_observed):
-                zr = z[o_row + (k - 1) * n_slots + j]
-                for a in range(3):
-                    nu[a] += zr * coefficients[k - 1, j, a]
-            nu[_LATERAL] += z[o_ylo + k - 1] - z[o_yhi + k - 1]
-            nu[_SPEED] += z[o_vlo + k - 1] - z[o_vhi + k - 1]
-            if k < horizon:
-                a_k = state_matrices[k]
-                for c in range(4):
-                    acc = 0.0
-                    for r in range(4):
-                        acc += a_k[r, c] * nu_next[r]
-                    nu[c] += acc
-            for a in range(4):
-                nu_next[a] = nu[a]
-            kk = k - 1
-            b_k = input_matrices[kk]
-            for i in range(2):
-                coupling = 0.0
-                for r in range(4):
-                    coupling += b_k[r, i] * nu[r]
-                multiplier = z[o_ulo + 2 * kk + i] - z[o_uhi + 2 * kk + i]
-                grad = input_gradient[kk, i]
-                dual_scale = max(dual_scale, abs(grad), abs(coupling), abs(multiplier))
-                dual_residual = max(dual_residual, abs(grad - multiplier - coupling))
-        for j in range(n_observed):
-            multiplier = z[o_slo + j]
-            for k in range(horizon):
-                i = k * n_slots + j
-                multiplier += z[o_row + i]
-                if has_sigma[k, j]:
-                    mult_sigma = z[o_row + i] + z[o_sglo + i] - z[o_sghi + i]
-                    grad_sigma = sigma_gradient[k, j]
-                    dual_scale = max(dual_scale, abs(grad_sigma), abs(mult_sigma))
-                    dual_residual = max(dual_residual, abs(grad_sigma - mult_sigma))
-            dual_scale = max(dual_scale, abs(slack_gradient[j]), abs(multiplier))
-            dual_residual = max(dual_residual, abs(slack_gradient[j] - multiplier))
-        if not (np.isfinite(mu) and np.isfinite(dual_residual)):
-            return STATUS_NUMERICAL_ERROR, iteration
-        if (primal_residual <= tolerance and mu <= tolerance
-                and dual_residual <= tolerance * dual_scale):
-            return STATUS_SOLVED, iteration
+        primal_residual, mu, dual_residual, dual_scale = _residuals(qp, point, ineq, gradients)
+        status = _convergence_status(primal_residual, mu, dual_residual, dual_scale, tolerance)
+        if status != _ITERATING:
+            return status, iteration
         if iteration == max_iterations:
             break
-
-        # ---------------- Newton matrix: D, stage Hessians, Riccati, Schur on s
-        for i in range(m):
-            d[i] = z[i] / t[i] if active[i] else 0.0
-        for k in range(horizon):
-            for j in range(n_slots):
-                i = k * n_slots + j
-                d_row = d[o_row + i]
-                if has_sigma[k, j]:
-                    h_sigma = 2.0 * w_s2 + d[o_sglo + i] + d[o_sghi + i]
-                    sigma_hessian[k, j] = h_sigma
-                    row_weight[k, j] = d_row * h_sigma / (d_row + h_sigma)
-                else:
-                    row_weight[k, j] = d_row
-            h = state_hessians[k]
-            for r in range(4):
-                for c in range(4):
-                    h[r, c] = 0.0
-                h[r, r] = state_weight_hessian[r]
-            h[_LATERAL, _LATERAL] += d[o_ylo + k] + d[o_yhi + k]
-            h[_SPEED, _SPEED] += d[o_vlo + k] + d[o_vhi + k]
-            for j in range(n_observed):
-                weight = row_weight[k, j]
-                for r in range(3):
-                    for c in range(3):
-                        h[r, c] += weight * coefficients[k, j, r] * coefficients[k, j, c]
-            for i in range(2):
-                input_hessians[k, i] = (input_weight_hessian[i] + rate_hessian[i]
-                                        + d[o_ulo + 2 * k + i] + d[o_uhi + 2 * k + i])
-        if not _riccati_factorize(state_matrices, input_matrices, state_hessians,
-                                  input_hessians, rate_hessian, cost_to_go, gains,
-                                  input_cholesky, scaled_cross):
+        if not _factorize_newton_matrix(qp, ineq, newton):
             return STATUS_NUMERICAL_ERROR, iteration
-        for j in range(n_observed):
-            slack_hessian[j] = 2.0 * w_c2 + d[o_slo + j]
-            for k in range(horizon):
-                weight = row_weight[k, j]
-                slack_hessian[j] += weight
-                for a in range(3):
-                    column_gradients[k, a] = weight * coefficients[k, j, a]
-            _riccati_solve(state_matrices, input_matrices, affine_offsets, column_gradients,
-                           zero_input_gradients, zero4, zero2, cost_to_go, gains,
-                           input_cholesky, scaled_cross, True, cost_to_go_vector, feedforward,
-                           column_states[j], column_inputs[j])
-        # Schur complement H_s + C_s^T W (C_s^T W_j = sum_k D'_ki n_ki . Wx_j,k)
-        for i in range(n_observed):
-            for j in range(n_observed):
-                acc = slack_hessian[i] if i == j else 0.0
-                for k in range(horizon):
-                    weight = row_weight[k, i]
-                    for a in range(3):
-                        acc += weight * coefficients[k, i, a] * column_states[j, k + 1, a]
-                schur_base[i, j] = acc
-
-        # ---------------- predictor (phase 0) and corrector (phase 1)
         sigma_centering = 0.0
         step_primal = np.inf
         step_dual = np.inf
-        for phase in range(2):
-            for i in range(m):
-                if not active[i]:
-                    gamma[i] = 0.0
-                elif phase == 0:
-                    gamma[i] = -d[i] * primal_residuals[i]
-                else:
-                    gamma[i] = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) / t[i]
-                                - d[i] * primal_residuals[i])
-            # model gradient grad f - C^T gamma, with each sigma eliminated from its row
-            for k in range(horizon):
-                for a in range(4):
-                    model_state_gradient[k, a] = state_gradient[k, a]
-                model_state_gradient[k, _LATERAL] += -gamma[o_ylo + k] + gamma[o_yhi + k]
-                model_state_gradient[k, _SPEED] += -gamma[o_vlo + k] + gamma[o_vhi + k]
-                for i in range(2):
-                    model_input_gradient[k, i] = (input_gradient[k, i] - gamma[o_ulo + 2 * k + i]
-                                                  + gamma[o_uhi + 2 * k + i])
-            for j in range(n_observed):
-                model_slack_gradient[j] = slack_gradient[j] - gamma[o_slo + j]
-                for k in range(horizon):
-                    i = k * n_slots + j
-                    if has_sigma[k, j]:
-                        h_sigma = sigma_hessian[k, j]
-                        g_sigma = sigma_gradient[k, j] - gamma[o_sglo + i] + gamma[o_sghi + i]
-                        d_row = d[o_row + i]
-                        g_row = -(gamma[o_row + i] * h_sigma + d_row * g_sigma) / (d_row + h_sigma)
-                    else:
-                        g_row = -gamma[o_row + i]
-                    model_slack_gradient[j] += g_row
-                    for a in range(3):
-                        model_state_gradient[k, a] += g_row * coefficients[k, j, a]
-            _riccati_solve(state_matrices, input_matrices, affine_offsets, model_state_gradient,
-                           model_input_gradient, zero4, zero2, cost_to_go, gains,
-                           input_cholesky, scaled_cross, True, cost_to_go_vector, feedforward,
-                           step_states, step_inputs)
-            # ds = -(H_s + C_s^T W)^-1 (g_s + C_s^T dw_0)
-            for i in range(n_observed):
-                acc = model_slack_gradient[i]
-                for k in range(horizon):
-                    weight = row_weight[k, i]
-                    for a in range(3):
-                        acc += weight * coefficients[k, i, a] * step_states[k + 1, a]
-                step_slacks[i] = -acc
-                for j in range(n_observed):
-                    schur[i, j] = schur_base[i, j]
-            if not _cholesky_solve_in_place(schur, step_slacks, n_observed):
-                return STATUS_NUMERICAL_ERROR, iteration
-            for j in range(n_observed):
-                s_j = step_slacks[j]
-                for k in range(horizon):
-                    for a in range(4):
-                        step_states[k + 1, a] += s_j * column_states[j, k + 1, a]
-                    step_inputs[k, 0] += s_j * column_inputs[j, k, 0]
-                    step_inputs[k, 1] += s_j * column_inputs[j, k, 1]
-            # dsigma from its row: -(D_r d_rho + g_sigma - gamma_r) / (D_r + h_sigma)
-            for k in range(horizon):
-                for j in range(n_observed):
-                    if has_sigma[k, j]:
-                        i = k * n_slots + j
-                        x = step_states[k + 1]
-                        rho = (coefficients[k, j, 0] * x[0] + coefficients[k, j, 1] * x[1]
-                               + coefficients[k, j, 2] * x[2] + step_slacks[j])
-                        g_sigma = sigma_gradient[k, j] - gamma[o_sglo + i] + gamma[o_sghi + i]
-                        d_row = d[o_row + i]
-                        step_sigmas[k, j] = -(d_row * rho + g_sigma - gamma[o_row + i]) / (
-                            d_row + sigma_hessian[k, j])
-            # dt = C dw + r_p;  dz = (sigma mu - dt_aff dz_aff) / t - z - D dt
-            _constraint_values(step_states, step_inputs, step_slacks, step_sigmas, coefficients,
-                               zero_rows, zero_rows, zero_bounds, offsets, values)
-            step_primal = np.inf
-            step_dual = np.inf
-            for i in range(m):
-                if not active[i]:
-                    continue
-                dti = values[i] + primal_residuals[i]
-                if phase == 0:
-                    dzi = -z[i] - d[i] * dti
-                else:
-                    dzi = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) / t[i]
-                           - z[i] - d[i] * dti)
-                dt[i] = dti
-                dz[i] = dzi
-                if dti < 0.0:
-                    step_primal = min(step_primal, -t[i] / dti)
-                if dzi < 0.0:
-                    step_dual = min(step_dual, -z[i] / dzi)
-            if np.isnan(step_primal) or np.isnan(step_dual):
+        for phase in range(2):  # predictor (affine scaling), then corrector
+            ok, step_primal, step_dual = _newton_direction(phase, sigma_centering, mu, qp, ineq,
+                                                           gradients, newton, direction)
+            if not ok:
                 return STATUS_NUMERICAL_ERROR, iteration
             if phase == 0:
-                mu_affine = 0.0
-                alpha_primal = min(1.0, step_primal)
-                alpha_dual = min(1.0, step_dual)
-                for i in range(m):
-                    if active[i]:
-                        dt_aff[i] = dt[i]
-                        dz_aff[i] = dz[i]
-                        mu_affine += (t[i] + alpha_primal * dt[i]) * (z[i] + alpha_dual * dz[i])
-                mu_affine /= n_active
-                ratio = mu_affine / mu
-                sigma_centering = ratio * ratio * ratio
-        # ---------------- take the step
-        alpha_primal = min(1.0, FRACTION_TO_BOUNDARY * step_primal)
-        alpha_dual = min(1.0, FRACTION_TO_BOUNDARY * step_dual)
-        for k in range(horizon):
-            for a in range(4):
-                states[k + 1, a] += alpha_primal * step_states[k + 1, a]
-            for i in range(2):
-                inputs[k, i] += alpha_primal * step_inputs[k, i]
-            for j in range(n_observed):
-                sigmas[k, j] += alpha_primal * step_sigmas[k, j]
-        for j in range(n_observed):
-            slacks[j] += alpha_primal * step_slacks[j]
-        for i in range(m):
-            if active[i]:
-                t[i] += alpha_primal * dt[i]
-                z[i] += alpha_dual * dz[i]
+                sigma_centering = _mehrotra_centering(ineq, step_primal, step_dual, mu)
+        alpha_primal, alpha_dual = _step_lengths(step_primal, step_dual)
+        _update_iterate(point, direction, ineq, alpha_primal, alpha_dual, n_observed)
     return STATUS_MAX_ITERATIONS, max_iterations
 
 
