@@ -19,7 +19,8 @@ log for inspection). Keys:
 - ``dvc_repro_wall_s``, ``stages`` (name, kind, start and wall time, in pipeline order), ``training_s``
   (the stages that train), ``downstream_of_training_s`` (every stage that depends, directly or through
   other stages, on a training stage: evaluations, cross-checks, figures, videos, the table), ``other_s``;
-- the targets on 2 cores (``targets_s``: 3600 s whole, 900 s downstream of training) and each measured
+- the targets on 2 cores (``targets_s``: 7200 s whole, 3600 s downstream of training, issue 20's, with the
+  trade-off sweep and the peer PPO included) and each measured
   time as a ratio to its target (``ratio_to_target``, <= 1 meets it);
 - ``training_runs``: each training's own wall time (its ``summary.json``), and ``training_concurrency``,
   the sum of those over the training stages' wall time: the speedup of running the trainings side by side
@@ -51,8 +52,9 @@ sys.path.insert(0, str(ROOT))
 
 from srmpc.stages.evaluate import available_cores  # noqa: E402
 
-TARGETS_S = {"dvc_repro_wall_s": 3600.0, "downstream_of_training_s": 900.0}
-"""The issue's targets on this project's 2-core machine: the whole pipeline in 60 min, downstream in 15."""
+TARGETS_S = {"dvc_repro_wall_s": 7200.0, "downstream_of_training_s": 3600.0}
+"""Issue 20's targets on this project's 2-core machine: the whole pipeline in 120 min, downstream in 60
+(``results/benchmarks/pipeline.json`` of the last run records the targets it was measured against)."""
 STAGE_LINE = re.compile(r"^Running stage '([^']+)':")
 LOAD_SAMPLE_S = 15.0
 
