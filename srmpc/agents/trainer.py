@@ -51,6 +51,35 @@ def write_json(path: Path, data: dict) -> None:
     os.replace(temporary, path)
 
 
+CSV_COLUMNS = ("iteration", "frames", "wall_s", "episodes", "episode/return", "episode/train_return",
+               "episode/cost_return", "episode/si_cost_return", "episode/steps", "episode/vx", "cost_rate",
+               "step/reward", "env_steps_per_s", "train/lambda_mean", "train/lambda_share_at_max",
+               "train/violation_share", "train/lambda_cost_value_corr")
+"""The columns of ``metrics.csv``, one row per iteration (``srmpc.agents.report`` reads them)."""
+
+
+def truncate_metrics_csv(path: Path, last_iteration: int) -> None:
+    """Keep the rows up to ``last_iteration`` (a crash may have left later ones), replacing the file
+    atomically (temporary file + rename), so a crash here never leaves it empty."""
+    rows = []
+    if path.exists():
+        with path.open(newline="") as handle:
+            rows = [r for r in csv.DictReader(handle) if r.get("iteration") and
+                    float(r["iteration"]) <= last_iteration]
+    temporary = path.with_name(path.name + ".tmp")
+    with temporary.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    os.replace(temporary, path)
+
+
+def append_metrics_row(path: Path, metrics: dict[str, float]) -> None:
+    """One iteration's row of ``metrics.csv`` (columns it lacks stay empty)."""
+    with path.open("a", newline="") as handle:
+        csv.DictWriter(handle, fieldnames=CSV_COLUMNS).writerow({k: metrics.get(k, "") for k in CSV_COLUMNS})
+
+
 class NonFiniteError(RuntimeError):
     """A loss term or a parameter became NaN/Inf; the last good checkpoint is kept untouched."""
 
@@ -382,27 +411,11 @@ class Trainer:
         metrics.update({f"train/{k}": v for k, v in losses.items()})
         return metrics
 
-    CSV_COLUMNS = ("iteration", "frames", "wall_s", "episodes", "episode/return", "episode/train_return",
-                   "episode/cost_return", "episode/si_cost_return", "episode/steps", "episode/vx", "cost_rate",
-                   "step/reward", "env_steps_per_s", "train/lambda_mean", "train/lambda_share_at_max",
-                   "train/violation_share", "train/lambda_cost_value_corr")
+    CSV_COLUMNS = CSV_COLUMNS
 
     def _truncate_csv(self, path: Path) -> None:
-        """Keep the rows up to the resumed iteration (a crash may have left later ones), replacing the
-        file atomically (temporary file + rename), so a crash here never leaves it empty."""
-        rows = []
-        if path.exists():
-            with path.open(newline="") as handle:
-                rows = [r for r in csv.DictReader(handle) if r.get("iteration") and
-                        float(r["iteration"]) <= self.iteration]
-        temporary = path.with_name(path.name + ".tmp")
-        with temporary.open("w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=self.CSV_COLUMNS)
-            writer.writeheader()
-            writer.writerows(rows)
-        os.replace(temporary, path)
+        """Keep the rows up to the resumed iteration (see :func:`truncate_metrics_csv`)."""
+        truncate_metrics_csv(path, self.iteration)
 
     def _append_csv(self, path: Path, metrics: dict[str, float]) -> None:
-        with path.open("a", newline="") as handle:
-            csv.DictWriter(handle, fieldnames=self.CSV_COLUMNS).writerow(
-                {k: metrics.get(k, "") for k in self.CSV_COLUMNS})
+        append_metrics_row(path, metrics)

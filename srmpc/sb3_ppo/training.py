@@ -41,7 +41,6 @@ resumes (the model, its optimizer, the simulator's scenes and streams, the torch
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import time
@@ -56,7 +55,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from srmpc.agents.checkpoint import POLICY_NAME, atomic_torch_save
 from srmpc.agents.hyperparameters import PPOHyperparameters
-from srmpc.agents.trainer import METRICS_CSV, Trainer
+from srmpc.agents.trainer import METRICS_CSV, append_metrics_row, truncate_metrics_csv
 from srmpc.sb3_ppo.vec_env import TwinSb3VecEnv
 from srmpc.scenario.parameters import ScenarioParameters
 
@@ -156,9 +155,7 @@ class TrainingLog(BaseCallback):
         for key in ("return", "train_return", "cost_return", "si_cost_return", "steps", "vx"):
             if ended:
                 metrics[f"episode/{key}"] = sum(e[key] for e in ended) / len(ended)
-        with (self.output_dir / METRICS_CSV).open("a", newline="") as handle:
-            csv.DictWriter(handle, fieldnames=Trainer.CSV_COLUMNS).writerow(
-                {k: metrics.get(k, "") for k in Trainer.CSV_COLUMNS})
+        append_metrics_row(self.output_dir / METRICS_CSV, metrics)
         if self.run is not None:
             self.run.log_metrics(metrics, step=frames)
 
@@ -179,20 +176,6 @@ class TrainingLog(BaseCallback):
         os.replace(self.output_dir / (STATE_NAME + ".next"), self.output_dir / STATE_NAME)
 
 
-def _truncate_metrics(path: Path, frames: int) -> None:
-    """Keep the rows up to the checkpoint's frames (temporary file + rename)."""
-    rows = []
-    if path.exists():
-        with path.open(newline="") as handle:
-            rows = [r for r in csv.DictReader(handle) if r.get("frames") and float(r["frames"]) <= frames]
-    temporary = path.with_name(path.name + ".tmp")
-    with temporary.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=Trainer.CSV_COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(temporary, path)
-
-
 def train_sb3_ppo(scenario: ScenarioParameters, hp: PPOHyperparameters, output_dir: Path, run: Any = None) -> Path:
     """Train (or resume from ``last.zip``) into ``output_dir``; returns the metrics.csv path."""
     torch.set_num_threads(hp.num_threads)
@@ -210,12 +193,12 @@ def train_sb3_ppo(scenario: ScenarioParameters, hp: PPOHyperparameters, output_d
         np.random.set_state(state["numpy_rng"])  # noqa: NPY002 (SB3's minibatch shuffling draws from it)
         log = TrainingLog(env, hp, output_dir, run, wall_s=state["wall_s"])
         log.last_totals = state["last_totals"]
-        _truncate_metrics(output_dir / METRICS_CSV, state["frames"])
+        truncate_metrics_csv(output_dir / METRICS_CSV, state["frames"] // hp.frames_per_batch)
         remaining, reset = total - state["frames"], False
     else:
         model = make_ppo(env, hp)
         log = TrainingLog(env, hp, output_dir, run)
-        _truncate_metrics(output_dir / METRICS_CSV, -1)
+        truncate_metrics_csv(output_dir / METRICS_CSV, -1)
         remaining, reset = total, True
     if remaining > 0:
         model.learn(total_timesteps=remaining, callback=log, reset_num_timesteps=reset)

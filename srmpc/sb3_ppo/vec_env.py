@@ -24,11 +24,12 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
+from srmpc.agents.trainer import EpisodeTracker
 from srmpc.scenario.parameters import ScenarioParameters
 from srmpc.sim.vector_env import TwinVectorEnv
 
-EPISODE_KEYS = ("return", "train_return", "cost_return", "si_cost_return", "steps", "vx_sum")
-"""Per-episode sums: r' (J_r), the training reward r, event cost (J_c), SI cost, steps, v_x [m/s]."""
+EPISODE_KEYS = EpisodeTracker.KEYS
+"""Per-episode sums, our trainer's: r' (J_r), the training reward r, event cost (J_c), SI cost, steps, v_x [m/s]."""
 
 
 class TwinSb3VecEnv(VecEnv):
