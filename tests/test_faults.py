@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from srmpc.agents.checkpoint import CheckpointError, load_actor, load_checkpoint, save_policy
+from srmpc.agents.checkpoint import CheckpointError, load_actor, load_actor_mean_layers, load_checkpoint, save_policy
 from srmpc.agents.networks import make_actor
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,10 +48,11 @@ def _damaged(tmp_path: Path) -> dict[str, Path]:
 
 def test_a_damaged_policy_or_checkpoint_is_one_line_naming_the_file(tmp_path):
     for name, path in _damaged(tmp_path).items():
-        with pytest.raises(CheckpointError) as caught:
-            load_actor(path)
-        message = str(caught.value)
-        assert message.startswith(f"{path}: not a") and "\n" not in message, (name, message)
+        for load in (load_actor, load_actor_mean_layers):
+            with pytest.raises(CheckpointError) as caught:
+                load(path)
+            message = str(caught.value)
+            assert message.startswith(f"{path}: not a") and "\n" not in message, (name, load.__name__, message)
     checkpoint_dir = tmp_path / "run"
     checkpoint_dir.mkdir()
     (checkpoint_dir / "last.pt").write_bytes(b"PK\x03\x04 torn")

@@ -15,6 +15,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from srmpc.errors import FileFault
@@ -69,6 +70,34 @@ def save_policy(actor_state: dict[str, torch.Tensor], metadata: dict[str, Any], 
 def read_policy_file(path: Path) -> dict[str, Any]:
     """The dict a ``policy.pt`` holds (ours, or ``srmpc.sb3_ppo``'s with ``action_head``); one-line error if not."""
     return _load(path, "policy file")
+
+
+ACTOR_MEAN_PREFIX = "module.0.module.loc_net."
+"""Where our actor's state dict keeps the mean network's ``nn.Linear`` layers (``<index>.weight``, ``.bias``)."""
+
+
+def load_actor_mean_layers(path: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The mean network of the actor saved in a ``policy.pt`` by :func:`save_policy`, as float64 (out, in)
+    weights and (out,) biases in layer order: what :func:`load_actor` rebuilds, without TorchRL (whose
+    import costs every evaluation process about 2 s). One-line :class:`CheckpointError` if it does not fit
+    the file's ``observation_dim``, ``hidden_sizes`` and action size."""
+    saved = read_policy_file(path)
+    try:
+        state = saved["actor"]
+        indices = sorted({int(key[len(ACTOR_MEAN_PREFIX):].split(".")[0]) for key in state
+                          if key.startswith(ACTOR_MEAN_PREFIX)})
+        weights = [state[f"{ACTOR_MEAN_PREFIX}{i}.weight"].detach().double().numpy() for i in indices]
+        biases = [state[f"{ACTOR_MEAN_PREFIX}{i}.bias"].detach().double().numpy() for i in indices]
+        sizes = [int(saved["observation_dim"]), *map(int, saved["hidden_sizes"]), int(saved["action_low"].numel())]
+    except (KeyError, TypeError, ValueError, AttributeError) as error:
+        reason = (str(error).splitlines() or [type(error).__name__])[0]
+        raise CheckpointError(f"{path}: not a policy file written by training ({type(error).__name__}: {reason})"
+                              ) from error
+    shapes = [tuple(w.shape) for w in weights]
+    expected = list(zip(sizes[1:], sizes[:-1], strict=True))
+    if shapes != expected or [b.shape[0] for b in biases] != sizes[1:]:
+        raise CheckpointError(f"{path}: the actor's layers {shapes} do not match its sizes {sizes}")
+    return weights, biases
 
 
 def load_actor(path: Path):
