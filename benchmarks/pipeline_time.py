@@ -1,6 +1,6 @@
 """Wall time of the whole pipeline: ``dvc repro -f`` from a fresh clone, stage by stage.
 
-    python benchmarks/pipeline_time.py [--source .] [--workdir DIR] [--keep]
+    python benchmarks/pipeline_time.py [--source .] [--workdir DIR] [--keep] [--resume]
 
 1. ``git clone`` the source repository's committed HEAD into a temporary directory (``--workdir``), so
    the run sees exactly the commit it records, and nothing of this working tree (caches, checkpoints).
@@ -12,7 +12,14 @@
    ``Running stage '<name>'`` line to the next one (DVC runs stages one after another, so the stage
    times add up to the whole, up to DVC's start). The 1-minute load average is sampled every 15 s.
 
-Writes ``results/benchmarks/pipeline.json`` in the source repository, only once ``dvc repro -f`` has
+5. ``--resume --workdir DIR``: a run that was cut (the machine went away, Ctrl-C) continues in its clone
+   with ``dvc repro`` (no ``-f``): the stages it finished are up to date and skipped, the cut stage resumes
+   from its persistent outputs (finished episodes, ``last.pt``), the rest run. The state of every part
+   (``pipeline_state.json``: its stages and wall time, refreshed every 15 s) adds up: the whole wall time
+   is the sum of the parts' (the pause between them not counted), a cut stage's time the sum of its pieces
+   (with one extra start-up), and ``parts`` records each part.
+
+Writes ``results/benchmarks/pipeline.json`` in the source repository, only once ``dvc repro`` has
 succeeded (an interrupted or failed run leaves the previous file as it was, and keeps its directory and
 log for inspection). Keys:
 
@@ -27,6 +34,7 @@ log for inspection). Keys:
   (``pipelines/train_runs.py``) over running them one after another, measured in the same run;
 - ``outputs``: how many of the regenerated outputs have the same MD5 as the commit's ``dvc.lock``, and
   which differ (wall times in ``metrics.csv`` and ``summary.json`` always do);
+- ``parts``: each part's wall time and stages (one part unless resumed);
 - ``commit``, ``cpu_count``, ``available_cores``, the load averages, ``setup_s``, the DVC version.
 """
 
@@ -103,30 +111,68 @@ def training_stage_names(dvc_yaml: Path) -> set[str]:
 
 
 class LoadSampler(threading.Thread):
-    """The 1-minute load average every ``LOAD_SAMPLE_S`` seconds while the pipeline runs."""
+    """The 1-minute load average every ``LOAD_SAMPLE_S`` seconds while the pipeline runs; calls
+    ``heartbeat()`` after each sample (the run's state file is refreshed there)."""
 
-    def __init__(self) -> None:
+    def __init__(self, heartbeat=None) -> None:
         super().__init__(daemon=True)
         self.samples: list[float] = []
         self.stopped = threading.Event()
+        self.heartbeat = heartbeat
 
     def run(self) -> None:
         while not self.stopped.wait(LOAD_SAMPLE_S):
             self.samples.append(os.getloadavg()[0])
+            if self.heartbeat is not None:
+                self.heartbeat()
 
 
-def timed_repro(clone: Path, bin_dir: Path, log_path: Path, partial_path: Path) -> tuple[float, list[dict], int]:
-    """``dvc repro -f`` in ``clone`` with ``bin_dir`` (its virtual environment's) first on PATH: the wall
+class RunState:
+    """``pipeline_state.json`` of a workdir: the commit, setup time, the commit's output MD5s, and per part
+    its stages so far, wall time so far (refreshed every ``LOAD_SAMPLE_S``) and load samples. Written
+    atomically, so a run cut at any moment leaves a readable state to resume from."""
+
+    def __init__(self, path: Path, state: dict) -> None:
+        self.path = path
+        self.state = state
+        self.lock = threading.Lock()
+
+    @classmethod
+    def load(cls, path: Path) -> RunState:
+        try:
+            return cls(path, json.loads(path.read_text()))
+        except (OSError, ValueError) as error:
+            raise SystemExit(f"pipeline_time: --resume: {path}: no readable run state ({error})") from error
+
+    def new_part(self, samples: list[float]) -> dict:
+        part = {"stages": [], "wall_s": 0.0, "finished": False, "load_samples": samples}
+        with self.lock:
+            self.state.setdefault("parts", []).append(part)
+        self.write()
+        return part
+
+    def write(self) -> None:
+        with self.lock:
+            temporary = self.path.with_name(self.path.name + ".tmp")
+            temporary.write_text(json.dumps(self.state, indent=1) + "\n")
+            os.replace(temporary, self.path)
+
+
+def timed_repro(clone: Path, bin_dir: Path, log_path: Path, part: dict, state: RunState, force: bool
+                ) -> tuple[float, list[dict], int]:
+    """``dvc repro [-f]`` in ``clone`` with ``bin_dir`` (its virtual environment's) first on PATH: the wall
     time, the stages with their start and wall time, and DVC's exit code. Each line of DVC's output goes
-    to ``log_path``, with its time; ``partial_path`` lists the stages so far."""
+    to ``log_path`` (appended), with its time; ``part`` (in ``state``) holds the stages and wall time so far."""
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}",
            "TQDM_DISABLE": "1", "PYTHONUNBUFFERED": "1"}
     env.pop("SRMPC_PARENT_RUN_ID", None)
     env.pop("VIRTUAL_ENV", None)
-    stages: list[dict] = []
+    stages: list[dict] = part["stages"]
     started = time.perf_counter()
-    with log_path.open("w") as log:
-        process = subprocess.Popen([str(bin_dir / "dvc"), "repro", "--force"], cwd=clone, env=env,
+    part["started_perf"] = started
+    with log_path.open("a") as log:
+        log.write(f"=== part {len(state.state['parts'])}: dvc repro{' --force' if force else ''} ===\n")
+        process = subprocess.Popen([str(bin_dir / "dvc"), "repro", *(["--force"] if force else [])], cwd=clone, env=env,
                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
         assert process.stdout is not None
         for line in process.stdout:
@@ -135,16 +181,50 @@ def timed_repro(clone: Path, bin_dir: Path, log_path: Path, partial_path: Path) 
             log.flush()
             match = STAGE_LINE.match(line)
             if match:
-                if stages:
-                    stages[-1]["wall_s"] = now - stages[-1]["started_s"]
-                stages.append({"name": match.group(1), "started_s": now})
-                partial_path.write_text(json.dumps(stages, indent=1) + "\n")
+                with state.lock:
+                    if stages:
+                        stages[-1]["wall_s"] = now - stages[-1]["started_s"]
+                    stages.append({"name": match.group(1), "started_s": now, "wall_s": 0.0})
+                    part["wall_s"] = now
+                state.write()
                 print(f"[{now:8.1f} s] {match.group(1)}", flush=True)
         returncode = process.wait()
     wall = time.perf_counter() - started
-    if stages:
-        stages[-1]["wall_s"] = wall - stages[-1]["started_s"]
+    with state.lock:
+        if stages:
+            stages[-1]["wall_s"] = wall - stages[-1]["started_s"]
+        part["wall_s"] = wall
+        part["finished"] = returncode == 0
+    state.write()
     return wall, stages, returncode
+
+
+def refresh_part(part: dict, state: RunState) -> None:
+    """Heartbeat: the running part's wall time, and its current stage's, up to now."""
+    with state.lock:
+        now = time.perf_counter() - part.get("started_perf", time.perf_counter())
+        part["wall_s"] = now
+        if part["stages"]:
+            part["stages"][-1]["wall_s"] = now - part["stages"][-1]["started_s"]
+    state.write()
+
+
+def merge_parts(parts: list[dict]) -> tuple[float, list[dict]]:
+    """The whole run from its parts: total wall time (pauses between parts excluded) and each stage once,
+    in pipeline order, started at its first piece's time on the summed clock, its pieces' walls added."""
+    offset, merged, by_name = 0.0, [], {}
+    for part in parts:
+        for stage in part["stages"]:
+            if stage["name"] in by_name:
+                by_name[stage["name"]]["wall_s"] += stage["wall_s"]
+                by_name[stage["name"]]["pieces"] += 1
+            else:
+                entry = {"name": stage["name"], "started_s": offset + stage["started_s"], "wall_s": stage["wall_s"],
+                         "pieces": 1}
+                by_name[stage["name"]] = entry
+                merged.append(entry)
+        offset += part["wall_s"]
+    return offset, merged
 
 
 def training_runs(clone: Path, dvc_yaml: Path, training_stages: set[str]) -> list[dict]:
@@ -164,32 +244,17 @@ def training_runs(clone: Path, dvc_yaml: Path, training_stages: set[str]) -> lis
     return runs
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--source", type=Path, default=ROOT, help="the repository to clone (its HEAD)")
-    parser.add_argument("--workdir", type=Path, default=None, help="where to clone (default: a new temporary dir)")
-    parser.add_argument("--keep", action="store_true", help="keep the clone after a successful run")
-    parser.add_argument("--output", type=Path, default=None,
-                        help="default: <source>/results/benchmarks/pipeline.json")
-    args = parser.parse_args()
-    source = args.source.resolve()
-    output = args.output or source / "results" / "benchmarks" / "pipeline.json"
-    workdir = Path(tempfile.mkdtemp(prefix="srmpc-pipeline-")) if args.workdir is None else args.workdir.resolve()
-    workdir.mkdir(parents=True, exist_ok=True)
-    clone = workdir / "srmpc"
-    if clone.exists():
-        raise SystemExit(f"pipeline_time: --workdir {workdir}: already holds a clone (srmpc/); pick an empty one")
-    setup_log = workdir / "setup.log"
+def set_up_clone(source: Path, workdir: Path, clone: Path) -> dict:
+    """Clone ``source``'s HEAD, ``make install`` there, delete every output its ``dvc.lock`` lists: the new
+    run's state (commit, setup time, the commit's output MD5s)."""
     print(f"pipeline_time: cloning {source} into {clone} (log: {workdir})", flush=True)
-
-    with setup_log.open("w") as log:
+    with (workdir / "setup.log").open("w") as log:
         run_checked(["git", "clone", "--quiet", "--no-hardlinks", str(source), str(clone)], workdir, log)
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=clone, capture_output=True, text=True,
                                 check=True).stdout.strip()
         setup_started = time.perf_counter()
         run_checked(["make", "install"], clone, log)
         setup_s = time.perf_counter() - setup_started
-
     committed_outputs = locked_outputs(clone / "dvc.lock")
     for path in committed_outputs:  # start from nothing: no finished episode or training to resume from
         target = clone / path
@@ -197,18 +262,60 @@ def main() -> None:
             shutil.rmtree(target)
         elif target.exists():
             target.unlink()
+    return {"commit": commit, "setup_s": setup_s, "committed_outputs": committed_outputs, "parts": []}
 
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--source", type=Path, default=ROOT, help="the repository to clone (its HEAD)")
+    parser.add_argument("--workdir", type=Path, default=None, help="where to clone (default: a new temporary dir)")
+    parser.add_argument("--keep", action="store_true", help="keep the clone after a successful run")
+    parser.add_argument("--output", type=Path, default=None,
+                        help="default: <source>/results/benchmarks/pipeline.json")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the cut run in --workdir (its clone and pipeline_state.json)")
+    args = parser.parse_args()
+    source = args.source.resolve()
+    output = args.output or source / "results" / "benchmarks" / "pipeline.json"
+    if args.resume and args.workdir is None:
+        raise SystemExit("pipeline_time: --resume needs the --workdir of the run to continue")
+    workdir = Path(tempfile.mkdtemp(prefix="srmpc-pipeline-")) if args.workdir is None else args.workdir.resolve()
+    clone = workdir / "srmpc"
+    state_path = workdir / "pipeline_state.json"
+    if args.resume:
+        state = RunState.load(state_path)
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=clone, capture_output=True, text=True).stdout.strip()
+        if head != state.state["commit"]:
+            raise SystemExit(f"pipeline_time: --resume: {clone} is at {head or 'no commit'}, its run at "
+                             f"{state.state['commit']}")
+        for stale in ("rwlock", "lock"):  # left behind by the cut run's DVC process, which is gone
+            (clone / ".dvc" / "tmp" / stale).unlink(missing_ok=True)
+        print(f"pipeline_time: resuming the run in {clone} (part {len(state.state['parts']) + 1})", flush=True)
+    else:
+        workdir.mkdir(parents=True, exist_ok=True)
+        if clone.exists():
+            raise SystemExit(f"pipeline_time: --workdir {workdir}: already holds a clone (srmpc/); pick an empty "
+                             "one, or --resume it")
+        state = RunState(state_path, set_up_clone(source, workdir, clone))
+
+    commit, setup_s = state.state["commit"], state.state["setup_s"]
+    committed_outputs = state.state["committed_outputs"]
     training_stages = training_stage_names(clone / "dvc.yaml")
     kinds = stage_kinds(clone, training_stages)
     load_before = os.getloadavg()
-    sampler = LoadSampler()
+    samples: list[float] = []
+    part = state.new_part(samples)
+    sampler = LoadSampler(heartbeat=lambda: refresh_part(part, state))
+    sampler.samples = samples
     sampler.start()
-    wall, stages, returncode = timed_repro(clone, clone / ".venv" / "bin", workdir / "dvc_repro.log",
-                                         workdir / "stages.partial.json")
+    _, _, returncode = timed_repro(clone, clone / ".venv" / "bin", workdir / "dvc_repro.log", part, state,
+                                   force=not args.resume)
     sampler.stopped.set()
+    wall, stages = merge_parts(state.state["parts"])
     if returncode != 0:
-        raise SystemExit(f"pipeline_time: dvc repro -f failed with exit {returncode} after {wall:.0f} s; "
-                         f"log: {workdir / 'dvc_repro.log'} (results/benchmarks/pipeline.json left as it was)")
+        raise SystemExit(f"pipeline_time: dvc repro failed with exit {returncode} after {wall:.0f} s; "
+                         f"log: {workdir / 'dvc_repro.log'} (results/benchmarks/pipeline.json left as it was; "
+                         f"--resume --workdir {workdir} continues it)")
 
     for stage in stages:
         stage["kind"] = kinds.get(stage["name"], "other")
@@ -217,7 +324,7 @@ def main() -> None:
     regenerated = locked_outputs(clone / "dvc.lock")
     differing = sorted(p for p, md5 in regenerated.items() if md5 is not None and committed_outputs.get(p) != md5)
     measured = {"dvc_repro_wall_s": wall, "downstream_of_training_s": sums["downstream"]}
-    samples = sampler.samples or [os.getloadavg()[0]]
+    samples = [x for p in state.state["parts"] for x in p["load_samples"]] or [os.getloadavg()[0]]
     result = {
         "dvc_repro_wall_s": wall,
         "training_s": sums["training"],
@@ -226,8 +333,10 @@ def main() -> None:
         "targets_s": TARGETS_S,
         "ratio_to_target": {k: measured[k] / TARGETS_S[k] for k in TARGETS_S},
         "meets_targets": all(measured[k] <= TARGETS_S[k] for k in TARGETS_S),
-        "stages": [{"name": s["name"], "kind": s["kind"], "started_s": s["started_s"], "wall_s": s["wall_s"]}
-                   for s in stages],
+        "stages": [{"name": s["name"], "kind": s["kind"], "started_s": s["started_s"], "wall_s": s["wall_s"],
+                    **({"pieces": s["pieces"]} if s["pieces"] > 1 else {})} for s in stages],
+        "parts": [{"wall_s": p["wall_s"], "stages_run": len(p["stages"]), "finished": p["finished"]}
+                  for p in state.state["parts"]],
         "n_stages": len(stages),
         "training_runs": runs,
         "training_concurrency": (sum(r["wall_s"] for r in runs) / sums["training"]) if sums["training"] else None,

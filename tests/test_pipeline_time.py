@@ -54,9 +54,16 @@ def test_training_stages_are_found_by_their_command(tmp_path):
     assert pipeline_time.training_stage_names(tmp_path / "dvc.yaml") == {"a", "b"}
 
 
+def _part(project: Path):
+    state = pipeline_time.RunState(project / "state.json", {"commit": "c", "setup_s": 0.0, "committed_outputs": {},
+                                                            "parts": []})
+    return state, state.new_part([])
+
+
 def test_timed_repro_times_every_stage_in_order(project):
+    state, part = _part(project)
     wall, stages, returncode = pipeline_time.timed_repro(project, Path(sys.executable).parent,
-                                                         project / "repro.log", project / "partial.json")
+                                                         project / "repro.log", part, state, force=True)
     assert returncode == 0
     assert [s["name"] for s in stages] == ["scenario", "train", "evaluate", "table"]
     assert stages[1]["wall_s"] >= 1.5  # the stage that sleeps
@@ -69,6 +76,29 @@ def test_timed_repro_times_every_stage_in_order(project):
 
 def test_a_failing_stage_gives_its_exit_code(project):
     (project / "dvc.yaml").write_text(DVC_YAML.replace("open('table.txt', 'w')", "exit(3) or open('table.txt', 'w')"))
+    state, part = _part(project)
     wall, stages, returncode = pipeline_time.timed_repro(project, Path(sys.executable).parent,
-                                                         project / "repro.log", project / "partial.json")
+                                                         project / "repro.log", part, state, force=True)
     assert returncode != 0 and stages[-1]["name"] == "table"
+
+
+def test_a_cut_run_resumes_where_it_stopped_and_its_parts_add_up(project):
+    """Part 1 stops at ``evaluate`` (it fails, as a cut would leave it); part 2, ``dvc repro`` without -f,
+    skips the two finished stages and runs the rest; the state file read back merges them, each stage once."""
+    bin_dir = Path(sys.executable).parent
+    (project / "dvc.yaml").write_text(DVC_YAML.replace("open('episodes.txt', 'w')", "exit(3) or open('episodes.txt', 'w')"))
+    state, part = _part(project)
+    _, first, returncode = pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state, force=True)
+    assert returncode != 0 and [s["name"] for s in first] == ["scenario", "train", "evaluate"]
+    (project / "dvc.yaml").write_text(DVC_YAML)
+    state = pipeline_time.RunState.load(project / "state.json")  # as a new process would
+    part = state.new_part([])
+    _, second, returncode = pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state, force=False)
+    assert returncode == 0 and [s["name"] for s in second] == ["evaluate", "table"]
+    wall, merged = pipeline_time.merge_parts(pipeline_time.RunState.load(project / "state.json").state["parts"])
+    assert [(s["name"], s["pieces"]) for s in merged] == [("scenario", 1), ("train", 1), ("evaluate", 2), ("table", 1)]
+    parts = state.state["parts"]
+    assert wall == pytest.approx(parts[0]["wall_s"] + parts[1]["wall_s"]) and not parts[0]["finished"]
+    assert merged[2]["wall_s"] == pytest.approx(first[2]["wall_s"] + second[0]["wall_s"])
+    assert merged[3]["started_s"] == pytest.approx(parts[0]["wall_s"] + second[1]["started_s"])
+    assert (project / "table.txt").read_text() == "p"
