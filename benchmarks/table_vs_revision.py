@@ -1,0 +1,126 @@
+"""Every cell of the paper's table now against the same cell at another git revision, paired on the seeds.
+
+    python benchmarks/table_vs_revision.py --revision <commit> [--out results/benchmarks/table_vs_revision.json]
+
+A change that alters floating-point results (a faster solver, a new kernel) regenerates every evaluation;
+this says whether the table moved more than its own noise. For each traffic level and each method of
+``pipelines/paper_table.py`` (the episodes of ``results/evaluation/twin/<method>_<traffic>`` and
+``results/evaluation/confirmation/srmpc_recommended_<traffic>``), it reads that ``episodes.csv`` in the
+working tree ("after") and at ``--revision`` (``git show``, "before"), and gives per metric (J_r, J_c,
+n_steps, v_x):
+
+- ``before`` and ``after``, each with its 95% interval (as the table computes it);
+- ``paired``: the mean of after - before over the episodes run from the same seed, with its 95% bootstrap
+  interval (``srmpc.confidence_intervals.paired_differences``, the table's resamples and seed);
+- ``agrees``: the paired interval contains 0, and each value lies in the other's interval;
+- ``identical_episodes``: how many episodes gave exactly the same row (all four metrics).
+
+``all_agree`` is true when every cell agrees. Nothing here is a test: a cell that moves is a finding.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from srmpc.confidence_intervals import (  # noqa: E402
+    PAIRED_METRICS,
+    paired_differences,
+    table_metrics_with_intervals,
+)
+
+METHODS = ("ppo_lsi", "ltv_mpc", "srmpc", "ppo", "ppo_sb3", "lane_keeping", "srmpc_recommended")
+"""The rows of ``results/table.json``."""
+TRAFFIC = ("light", "dense")
+RESAMPLES, SEED = 2000, 0
+"""The bootstrap of ``pipelines/paper_table.py``."""
+OUTPUT = ROOT / "results" / "benchmarks" / "table_vs_revision.json"
+
+
+def episodes_path(method: str, traffic: str) -> str:
+    if method == "srmpc_recommended":
+        return f"results/evaluation/confirmation/{method}_{traffic}/episodes.csv"
+    return f"results/evaluation/twin/{method}_{traffic}/episodes.csv"
+
+
+def at_revision(revision: str, path: str) -> pd.DataFrame:
+    shown = subprocess.run(["git", "show", f"{revision}:{path}"], cwd=ROOT, capture_output=True, text=True)
+    if shown.returncode != 0:
+        raise SystemExit(f"table_vs_revision: --revision {revision}: no {path} there "
+                         f"({shown.stderr.strip().splitlines()[-1] if shown.stderr.strip() else 'git show failed'})")
+    return pd.read_csv(io.StringIO(shown.stdout))
+
+
+INTERVAL_SLACK = 1e-12
+"""Relative slack on "lies in the interval": Wilson's lower bound for 0 events comes out as ~2e-19, not 0."""
+
+
+def _inside(value: float, low: float, high: float) -> bool:
+    slack = INTERVAL_SLACK * (1.0 + abs(value))
+    return low - slack <= value <= high + slack
+
+
+def compare_cells(before: pd.DataFrame, after: pd.DataFrame) -> dict:
+    """The four paired metrics of one table row: before, after, paired difference, agreement."""
+    row_before = table_metrics_with_intervals(before, RESAMPLES, SEED)
+    row_after = table_metrics_with_intervals(after, RESAMPLES, SEED)
+    paired = paired_differences(after, before, RESAMPLES, SEED)
+    columns = list(PAIRED_METRICS)
+    merged = after.merge(before, on="seed", suffixes=("_a", "_b"))
+    identical = int((merged[[f"{c}_a" for c in columns]].to_numpy()
+                     == merged[[f"{c}_b" for c in columns]].to_numpy()).all(axis=1).sum())
+    cells = {}
+    for metric in PAIRED_METRICS.values():
+        low, high = paired[f"{metric}_ci95"]
+        b, a = row_before[metric], row_after[metric]
+        b_low, b_high = row_before[f"{metric}_ci95"]
+        a_low, a_high = row_after[f"{metric}_ci95"]
+        cells[metric] = {
+            "before": b, "before_ci95": [b_low, b_high], "after": a, "after_ci95": [a_low, a_high],
+            "paired": paired[metric], "paired_ci95": [low, high],
+            "agrees": bool(low <= 0.0 <= high and _inside(a, b_low, b_high) and _inside(b, a_low, a_high)),
+        }
+    return {"episodes_paired": paired["episodes"], "identical_episodes": identical, "cells": cells}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--revision", required=True, help="the git revision whose results are 'before'")
+    parser.add_argument("--out", type=Path, default=OUTPUT)
+    args = parser.parse_args()
+    commit = subprocess.run(["git", "rev-parse", args.revision], cwd=ROOT, capture_output=True, text=True)
+    if commit.returncode != 0:
+        raise SystemExit(f"table_vs_revision: --revision {args.revision}: not a git revision")
+    result = {"revision": commit.stdout.strip(), "traffic": {}}
+    for traffic in TRAFFIC:
+        for method in METHODS:
+            path = episodes_path(method, traffic)
+            if not (ROOT / path).is_file():
+                raise SystemExit(f"table_vs_revision: {path}: missing in the working tree (dvc repro first)")
+            comparison = compare_cells(at_revision(args.revision, path), pd.read_csv(ROOT / path))
+            result["traffic"].setdefault(traffic, {})[method] = comparison
+            print(f"{traffic:5s} {method:18s} identical {comparison['identical_episodes']:4d}/"
+                  f"{comparison['episodes_paired']}  " + "  ".join(
+                      f"{m} {c['paired']:+.3g} [{c['paired_ci95'][0]:+.3g}, {c['paired_ci95'][1]:+.3g}]"
+                      f"{'' if c['agrees'] else ' MOVED'}" for m, c in comparison["cells"].items()))
+    result["all_agree"] = all(cell["agrees"] for level in result["traffic"].values()
+                              for row in level.values() for cell in row["cells"].values())
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    temporary = args.out.with_name(args.out.name + ".tmp")
+    temporary.write_text(json.dumps(result, indent=1) + "\n")
+    os.replace(temporary, args.out)
+    print(f"all cells agree: {result['all_agree']} ({args.out})")
+
+
+if __name__ == "__main__":
+    main()
