@@ -99,11 +99,12 @@ _Primal = namedtuple("_Primal", ["states", "inputs", "slacks", "sigmas"])
 """A primal point w or direction dw: x (N + 1, 4), u (N, 2), s (V,), sigma (N, V)."""
 _Inequalities = namedtuple("_Inequalities", [
     "offsets", "active", "has_sigma", "n_active", "values", "t", "z", "d", "residuals", "gamma",
-    "dt", "dz", "dt_aff", "dz_aff", "zero_rows", "zero_bounds"])
+    "dt", "dz", "dt_aff", "dz_aff", "zero_rows", "zero_bounds", "t_inverse", "z_inverse"])
 """The m inequalities C w >= h: group starts (``_offsets``), which exist (active (m,), has_sigma
 (N, V), their count n_active), then vectors (m,): a^T w - b, slacks t, multipliers z, D = z / t,
 r_p = a^T w - b - t, gamma, the step (dt, dz) and the predictor's (dt_aff, dz_aff); zero_rows
-(N, V) and zero_bounds (8,) make ``_constraint_values`` of a direction give C dw."""
+(N, V) and zero_bounds (8,) make ``_constraint_values`` of a direction give C dw; 1 / t and
+1 / z (m,) at the current point (0 on inactive rows)."""
 _Gradients = namedtuple("_Gradients", ["states", "inputs", "slacks", "sigmas", "model_states",
                                        "model_inputs", "model_slacks", "nu", "nu_next"])
 """grad f on x_1..N (N, 4), u (N, 2), s (V,), sigma (N, V); the model gradient grad f - C^T gamma
@@ -516,7 +517,8 @@ def _starting_inequalities(qp, point, offsets, active, has_sigma, n_active):
             z[i] = INITIAL_MULTIPLIER
     return _Inequalities(offsets, active, has_sigma, n_active, values, t, z, np.empty(m),
                          np.zeros(m), np.empty(m), np.zeros(m), np.zeros(m), np.zeros(m),
-                         np.zeros(m), np.zeros((horizon, n_slots)), np.zeros(8))
+                         np.zeros(m), np.zeros((horizon, n_slots)), np.zeros(8), np.zeros(m),
+                         np.zeros(m))
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -630,7 +632,7 @@ def _residuals(qp, point, ineq, gradients):
     (last_input, state_matrices, input_matrices, _, tracking_reference, coefficients, row_lower,
      sigma_upper, n_observed, state_weight_hessian, input_weight_hessian, rate_hessian,
      slack_weights, bounds) = qp
-    (offsets, active, has_sigma, n_active, values, t, z, _, residuals, _, _, _, _, _, _,
+    (offsets, active, has_sigma, n_active, values, t, z, _, residuals, _, _, _, _, _, _, _, _,
      _) = ineq
     (state_gradient, input_gradient, slack_gradient, sigma_gradient, _, _, _, nu,
      nu_next) = gradients
@@ -665,10 +667,17 @@ def _convergence_status(primal_residual, mu, dual_residual, dual_scale, toleranc
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _barrier_weights(active, t, z, d):
-    """D = z / t (m,) on the active inequalities, 0 elsewhere, into ``d``."""
+def _barrier_weights(active, t, z, d, t_inverse, z_inverse):
+    """1 / t, 1 / z and D = z / t (m,) on the active inequalities, 0 elsewhere."""
     for i in range(d.shape[0]):
-        d[i] = z[i] / t[i] if active[i] else 0.0
+        if active[i]:
+            t_inverse[i] = 1.0 / t[i]
+            z_inverse[i] = 1.0 / z[i]
+            d[i] = z[i] * t_inverse[i]
+        else:
+            t_inverse[i] = 0.0
+            z_inverse[i] = 0.0
+            d[i] = 0.0
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -747,11 +756,12 @@ def _factorize_newton_matrix(qp, ineq, newton):
     some R^ is not (numerically) positive definite."""
     (_, state_matrices, input_matrices, _, _, coefficients, _, _, n_observed,
      state_weight_hessian, input_weight_hessian, rate_hessian, slack_weights, _) = qp
-    (offsets, active, has_sigma, _, _, t, z, d, _, _, _, _, _, _, _, _) = ineq
+    (offsets, active, has_sigma, _, _, t, z, d, _, _, _, _, _, _, _, _, t_inverse,
+     z_inverse) = ineq
     (state_hessians, input_hessians, row_weight, sigma_hessian, slack_hessian, cost_to_go,
      gains, input_cholesky, scaled_cross, cost_to_go_vector, _, column_scaled,
      column_gradients, zero_input_gradients, schur_base, _) = newton
-    _barrier_weights(active, t, z, d)
+    _barrier_weights(active, t, z, d, t_inverse, z_inverse)
     _stage_hessians(offsets, d, has_sigma, n_observed, coefficients, state_weight_hessian,
                     input_weight_hessian, rate_hessian, slack_weights[3], row_weight,
                     sigma_hessian, state_hessians, input_hessians)
@@ -769,7 +779,8 @@ def _factorize_newton_matrix(qp, ineq, newton):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _model_gamma(phase, sigma_centering, mu, active, t, d, residuals, dt_aff, dz_aff, gamma):
+def _model_gamma(phase, sigma_centering, mu, active, t_inverse, d, residuals, dt_aff, dz_aff,
+                 gamma):
     """gamma (m,) of the Newton model: -D r_p for the predictor (phase 0), plus
     (sigma mu - dt_aff dz_aff) / t for the corrector (phase 1); 0 on inactive rows."""
     for i in range(gamma.shape[0]):
@@ -778,7 +789,7 @@ def _model_gamma(phase, sigma_centering, mu, active, t, d, residuals, dt_aff, dz
         elif phase == 0:
             gamma[i] = -d[i] * residuals[i]
         else:
-            gamma[i] = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) / t[i]
+            gamma[i] = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) * t_inverse[i]
                         - d[i] * residuals[i])
 
 
@@ -864,28 +875,24 @@ def _safety_slack_direction(offsets, gamma, d, has_sigma, n_observed, coefficien
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _inequality_direction(phase, sigma_centering, mu, active, t, z, d, direction_values,
-                          residuals, dt_aff, dz_aff, dt, dz):
+def _inequality_direction(active, z, d, t_inverse, z_inverse, direction_values, residuals,
+                          gamma, dt, dz):
     """dt = C dw + r_p and dz = (sigma mu - dt_aff dz_aff) / t - z - D dt (predictor: without the
-    first term) (m,), from ``direction_values`` = C dw.  Returns the largest primal and dual
-    steps to the boundary t = 0, z = 0 (inf if unbounded)."""
-    step_primal = np.inf
-    step_dual = np.inf
+    first term) = gamma - z - D C dw (m,), from ``direction_values`` = C dw.  Returns the largest
+    primal and dual steps to the boundary t = 0, z = 0 (inf if unbounded)."""
+    primal_ratio = 0.0
+    dual_ratio = 0.0
     for i in range(dt.shape[0]):
         if not active[i]:
             continue
         dti = direction_values[i] + residuals[i]
-        if phase == 0:
-            dzi = -z[i] - d[i] * dti
-        else:
-            dzi = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) / t[i]
-                   - z[i] - d[i] * dti)
+        dzi = gamma[i] - z[i] - d[i] * direction_values[i]
         dt[i] = dti
         dz[i] = dzi
-        if dti < 0.0:
-            step_primal = min(step_primal, -t[i] / dti)
-        if dzi < 0.0:
-            step_dual = min(step_dual, -z[i] / dzi)
+        primal_ratio = max(primal_ratio, -dti * t_inverse[i])
+        dual_ratio = max(dual_ratio, -dzi * z_inverse[i])
+    step_primal = 1.0 / primal_ratio if primal_ratio > 0.0 else np.inf
+    step_dual = 1.0 / dual_ratio if dual_ratio > 0.0 else np.inf
     return step_primal, step_dual
 
 
@@ -900,14 +907,15 @@ def _newton_direction(phase, sigma_centering, mu, qp, ineq, gradients, newton, d
     """
     (_, state_matrices, input_matrices, _, _, coefficients, _, _, n_observed, _, _, _, _,
      _) = qp
-    (offsets, active, has_sigma, _, values, t, z, d, residuals, gamma, dt, dz, dt_aff, dz_aff,
-     zero_rows, zero_bounds) = ineq
+    (offsets, active, has_sigma, _, values, _, z, d, residuals, gamma, dt, dz, dt_aff, dz_aff,
+     zero_rows, zero_bounds, t_inverse, z_inverse) = ineq
     (_, _, _, sigma_hessian, _, cost_to_go, gains, input_cholesky, scaled_cross,
      cost_to_go_vector, scaled_feedforward, column_scaled, _, _, schur_base, schur) = newton
     (state_gradient, input_gradient, slack_gradient, sigma_gradient, model_state_gradient,
      model_input_gradient, model_slack_gradient, _, _) = gradients
     step_states, step_inputs, step_slacks, step_sigmas = direction
-    _model_gamma(phase, sigma_centering, mu, active, t, d, residuals, dt_aff, dz_aff, gamma)
+    _model_gamma(phase, sigma_centering, mu, active, t_inverse, d, residuals, dt_aff, dz_aff,
+                 gamma)
     _model_gradient(offsets, gamma, d, has_sigma, n_observed, coefficients, sigma_hessian,
                     state_gradient, input_gradient, slack_gradient, sigma_gradient,
                     model_state_gradient, model_input_gradient, model_slack_gradient)
@@ -926,8 +934,8 @@ def _newton_direction(phase, sigma_centering, mu, qp, ineq, gradients, newton, d
                             step_sigmas)
     _constraint_values(step_states, step_inputs, step_slacks, step_sigmas, coefficients,
                        zero_rows, zero_rows, zero_bounds, offsets, values)
-    step_primal, step_dual = _inequality_direction(phase, sigma_centering, mu, active, t, z, d,
-                                                   values, residuals, dt_aff, dz_aff, dt, dz)
+    step_primal, step_dual = _inequality_direction(active, z, d, t_inverse, z_inverse, values,
+                                                   residuals, gamma, dt, dz)
     if np.isnan(step_primal) or np.isnan(step_dual):
         return False, step_primal, step_dual
     return True, step_primal, step_dual
@@ -937,7 +945,7 @@ def _newton_direction(phase, sigma_centering, mu, qp, ineq, gradients, newton, d
 def _mehrotra_centering(ineq, step_primal, step_dual, mu):
     """Step: keep the predictor's (dt, dz) as (dt_aff, dz_aff) and return Mehrotra's centering
     sigma = (mu_aff / mu)^3, mu_aff the complementarity after the predictor's step."""
-    (_, active, _, n_active, _, t, z, _, _, _, dt, dz, dt_aff, dz_aff, _, _) = ineq
+    (_, active, _, n_active, _, t, z, _, _, _, dt, dz, dt_aff, dz_aff, _, _, _, _) = ineq
     mu_affine = 0.0
     alpha_primal = min(1.0, step_primal)
     alpha_dual = min(1.0, step_dual)
@@ -965,7 +973,7 @@ def _update_iterate(point, direction, ineq, alpha_primal, alpha_dual, n_observed
     z += alpha_dual dz."""
     states, inputs, slacks, sigmas = point
     step_states, step_inputs, step_slacks, step_sigmas = direction
-    (_, active, _, _, _, t, z, _, _, _, dt, dz, _, _, _, _) = ineq
+    (_, active, _, _, _, t, z, _, _, _, dt, dz, _, _, _, _, _, _) = ineq
     for k in range(step_inputs.shape[0]):
         for a in range(4):
             states[k + 1, a] += alpha_primal * step_states[k + 1, a]
