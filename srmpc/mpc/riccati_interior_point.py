@@ -266,7 +266,7 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
         R^ = H^u_k + B~^T P B~ = L L^T,  S^ = [(B^T Pxx + Pux) A_k, -2S],  Y = L^-1 S^,
         K_k = -R^^-1 S^ = -L^-T Y,  P_k = blockdiag(H^x_k + A_k^T Pxx A_k, 2S) - Y^T Y.
 
-    Writes P_k (k = 1..N; P_N = blockdiag(H^x_N, 0)), K_k, L_k as (l00, l10, l11) and Y_k
+    Writes P_k (k = 1..N; P_N = blockdiag(H^x_N, 0)), K_k, L_k as (1 / l00, l10, 1 / l11) and Y_k
     (k = 0..N-1).  Returns False if some R^ is not (numerically) positive definite.
     """
     horizon = state_matrices.shape[0]
@@ -289,9 +289,9 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
         if not pivot > CHOLESKY_PIVOT_FLOOR * r11:
             return False
         l11 = np.sqrt(pivot)
-        input_cholesky[k, 0] = l00
+        input_cholesky[k, 0] = 1.0 / l00
         input_cholesky[k, 1] = l10
-        input_cholesky[k, 2] = l11
+        input_cholesky[k, 2] = 1.0 / l11
         y = scaled_cross[k]
         _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k)
         if k == 0:
@@ -328,11 +328,8 @@ def _riccati_backward(state_matrices, input_matrices, state_gradients, input_gra
         for r in range(4):
             r0 += b_k[r, 0] * v[r]
             r1 += b_k[r, 1] * v[r]
-        l00 = input_cholesky[k, 0]
-        l10 = input_cholesky[k, 1]
-        l11 = input_cholesky[k, 2]
-        e0 = r0 / l00
-        e1 = (r1 - l10 * e0) / l11
+        e0 = r0 * input_cholesky[k, 0]
+        e1 = (r1 - input_cholesky[k, 1] * e0) * input_cholesky[k, 2]
         scaled_feedforward[k, 0] = e0
         scaled_feedforward[k, 1] = e1
         if k == 0:
@@ -361,8 +358,8 @@ def _riccati_forward(state_matrices, input_matrices, gains, input_cholesky, scal
     for k in range(horizon):
         x = states[k]
         g = gains[k]
-        feed1 = -scaled_feedforward[k, 1] / input_cholesky[k, 2]
-        feed0 = -(scaled_feedforward[k, 0] + input_cholesky[k, 1] * feed1) / input_cholesky[k, 0]
+        feed1 = -scaled_feedforward[k, 1] * input_cholesky[k, 2]
+        feed0 = -(scaled_feedforward[k, 0] + input_cholesky[k, 1] * feed1) * input_cholesky[k, 0]
         u0 = (feed0 + g[0, 0] * x[0] + g[0, 1] * x[1] + g[0, 2] * x[2] + g[0, 3] * x[3]
               + g[0, 4] * previous0 + g[0, 5] * previous1)
         u1 = (feed1 + g[1, 0] * x[0] + g[1, 1] * x[1] + g[1, 2] * x[2] + g[1, 3] * x[3]
