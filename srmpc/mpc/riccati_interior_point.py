@@ -200,9 +200,10 @@ def _stage_input_hessian(b_k, nxt, input_hessians, k, m):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k):
+def _stage_gains(m, a_k, rate_hessian, cholesky, s_hat, y, gains, k):
     """Stage k's S^ = [m A_k, -2S] (2, 6), Y = L^-1 S^ (2, 6) into ``y`` and K_k = -L^-T Y
-    (2, 6) into gains[k]."""
+    (2, 6) into gains[k]; ``cholesky`` is L as (1 / l00, l10, 1 / l11)."""
+    inverse00, l10, inverse11 = cholesky[0], cholesky[1], cholesky[2]
     for i in range(2):
         for c in range(4):
             acc = 0.0
@@ -213,13 +214,13 @@ def _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k):
         s_hat[i, 5] = 0.0
         s_hat[i, 4 + i] = -rate_hessian[i]
     for c in range(6):
-        y0 = s_hat[0, c] / l00
-        y1 = (s_hat[1, c] - l10 * y0) / l11
+        y0 = s_hat[0, c] * inverse00
+        y1 = (s_hat[1, c] - l10 * y0) * inverse11
         y[0, c] = y0
         y[1, c] = y1
-        g1 = -y1 / l11
+        g1 = -y1 * inverse11
         gains[k, 1, c] = g1
-        gains[k, 0, c] = -(y0 + l10 * g1) / l00
+        gains[k, 0, c] = -(y0 + l10 * g1) * inverse00
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -293,7 +294,7 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
         input_cholesky[k, 1] = l10
         input_cholesky[k, 2] = 1.0 / l11
         y = scaled_cross[k]
-        _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k)
+        _stage_gains(m, a_k, rate_hessian, input_cholesky[k], s_hat, y, gains, k)
         if k == 0:
             break
         cur = p[k]
