@@ -34,6 +34,8 @@ log for inspection). Keys:
   (``pipelines/train_runs.py``) over running them one after another, measured in the same run;
 - ``outputs``: how many of the regenerated outputs have the same MD5 as the commit's ``dvc.lock``, and
   which differ (wall times in ``metrics.csv`` and ``summary.json`` always do);
+- ``projections``: the measured stages projected onto a 2-core laptop, an 8-core workstation and a SLURM
+  cluster (:func:`projections`: a model, stated there, not a measurement);
 - ``parts``: each part's wall time and stages (one part unless resumed);
 - ``commit``, ``cpu_count``, ``available_cores``, the load averages, ``setup_s``, the DVC version.
 """
@@ -101,6 +103,94 @@ def stage_kinds(repository: Path, training_stages: set[str]) -> dict[str, str]:
             else:
                 kinds[stage.name] = "other"
     return kinds
+
+
+def stage_upstreams(repository: Path) -> dict[str, set[str]]:
+    """Each stage's direct upstream stages (those whose outputs it depends on)."""
+    from dvc.repo import Repo
+
+    with Repo(str(repository)) as repo:
+        graph = repo.index.graph  # an edge runs from a stage to a stage it depends on
+        return {stage.name: {upstream.name for upstream in graph.successors(stage)} for stage in graph.nodes}
+
+
+def evaluation_stage_names(dvc_yaml: Path) -> set[str]:
+    """Stages (as dvc.yaml names them, before any ``@item``) whose command is an evaluation:
+    ``python -m srmpc`` without ``stage=train``."""
+    stages = yaml.safe_load(dvc_yaml.read_text())["stages"]
+    names = set()
+    for name, stage in stages.items():
+        command = stage.get("cmd") or stage.get("do", {}).get("cmd", "")
+        command = " ".join(command) if isinstance(command, list) else command
+        if command.startswith("python -m srmpc") and "stage=train" not in command:
+            names.add(name)
+    return names
+
+
+EVALUATION_START_S = 8.5
+"""The part of an evaluation stage's wall time that more workers do not shorten [s]: process start, the
+workers' spawn and numba cache load. From ``results/benchmarks/evaluation_workers.json``: 200 SRMPC
+episodes take 59.3 s in one process (about 5 s of it the process start) and 35.7 s on 2 workers, so
+35.7 = S + (59.3 - 5) / 2 gives S = 8.5 s."""
+SLURM_CORES_PER_EVALUATION = 8
+"""Cores of each evaluation job in the SLURM projection (``cpus_per_task``)."""
+
+
+def _makespan(walls: list[float], slots: int) -> float:
+    """Longest-processing-time-first schedule of ``walls`` on ``slots`` parallel slots: its makespan."""
+    loads = [0.0] * max(1, slots)
+    for wall in sorted(walls, reverse=True):
+        loads[loads.index(min(loads))] += wall
+    return max(loads)
+
+
+def projected_stage_s(stage: dict, runs: list[dict], evaluations: set[str], cores: int, measured_cores: int,
+                      one_job_per_run: bool = False) -> float:
+    """A model of ``stage``'s wall time on ``cores`` from its time on ``measured_cores`` (this run):
+
+    - a training stage: its runs (each single-threaded, their own measured walls) scheduled longest first on
+      ``cores`` slots (every run at once with ``one_job_per_run``), times the stage's measured overhead over
+      that schedule on ``measured_cores``;
+    - an evaluation: ``EVALUATION_START_S`` plus the rest of its time spread over ``cores`` workers;
+    - anything else (tables, figures, videos): as measured.
+    The per-core speed is this machine's; memory bandwidth and turbo effects are not modelled."""
+    own = [r["wall_s"] for r in runs if r["stage"] == stage["name"]]
+    if stage["kind"] == "training" and own:
+        measured_schedule = _makespan(own, measured_cores)
+        schedule = max(own) if one_job_per_run else _makespan(own, cores)
+        return stage["wall_s"] * schedule / measured_schedule
+    if stage["name"].split("@")[0] in evaluations:
+        work = max(stage["wall_s"] - EVALUATION_START_S, 0.0)
+        return min(stage["wall_s"], EVALUATION_START_S) + work * measured_cores / cores
+    return stage["wall_s"]
+
+
+def projections(stages: list[dict], runs: list[dict], evaluations: set[str], upstreams: dict[str, set[str]],
+                measured_cores: int) -> dict:
+    """The whole pipeline's wall time projected for a 2-core laptop, an 8-core workstation (``dvc repro``:
+    stages one after another, each on every core) and a SLURM cluster (every training run and every
+    evaluation its own job, all at once, an evaluation on ``SLURM_CORES_PER_EVALUATION`` cores: the
+    critical path through the stage graph; queueing not counted)."""
+    result = {}
+    for label, cores in (("laptop_2_cores", 2), ("workstation_8_cores", 8)):
+        result[label] = {"cores": cores, "dvc_repro_wall_s": sum(
+            projected_stage_s(s, runs, evaluations, cores, measured_cores) for s in stages)}
+    own = {s["name"]: projected_stage_s(s, runs, evaluations, SLURM_CORES_PER_EVALUATION, measured_cores,
+                                        one_job_per_run=True) for s in stages}
+    finish: dict[str, float] = {}
+
+    def finished_at(name: str) -> float:
+        if name not in finish:
+            finish[name] = own.get(name, 0.0) + max((finished_at(u) for u in upstreams.get(name, ())), default=0.0)
+        return finish[name]
+
+    critical = max((finished_at(name) for name in own), default=0.0)
+    result["slurm_cluster"] = {"cores_per_evaluation": SLURM_CORES_PER_EVALUATION, "critical_path_s": critical,
+                               "core_hours": sum(r["wall_s"] for r in runs) / 3600 + sum(
+                                   (s["wall_s"] * measured_cores) / 3600 for s in stages if s["kind"] != "training")}
+    result["model"] = ("training: runs scheduled on the cores, longest first; evaluation: "
+                       f"{EVALUATION_START_S} s fixed + the rest over the cores; other stages as measured")
+    return result
 
 
 def training_stage_names(dvc_yaml: Path) -> set[str]:
@@ -325,6 +415,8 @@ def main() -> None:
     differing = sorted(p for p, md5 in regenerated.items() if md5 is not None and committed_outputs.get(p) != md5)
     measured = {"dvc_repro_wall_s": wall, "downstream_of_training_s": sums["downstream"]}
     samples = [x for p in state.state["parts"] for x in p["load_samples"]] or [os.getloadavg()[0]]
+    evaluations = evaluation_stage_names(clone / "dvc.yaml")
+    projected = projections(stages, runs, evaluations, stage_upstreams(clone), available_cores())
     result = {
         "dvc_repro_wall_s": wall,
         "training_s": sums["training"],
@@ -335,6 +427,7 @@ def main() -> None:
         "meets_targets": all(measured[k] <= TARGETS_S[k] for k in TARGETS_S),
         "stages": [{"name": s["name"], "kind": s["kind"], "started_s": s["started_s"], "wall_s": s["wall_s"],
                     **({"pieces": s["pieces"]} if s["pieces"] > 1 else {})} for s in stages],
+        "projections": projected,
         "parts": [{"wall_s": p["wall_s"], "stages_run": len(p["stages"]), "finished": p["finished"]}
                   for p in state.state["parts"]],
         "n_stages": len(stages),

@@ -86,14 +86,17 @@ def test_a_cut_run_resumes_where_it_stopped_and_its_parts_add_up(project):
     """Part 1 stops at ``evaluate`` (it fails, as a cut would leave it); part 2, ``dvc repro`` without -f,
     skips the two finished stages and runs the rest; the state file read back merges them, each stage once."""
     bin_dir = Path(sys.executable).parent
-    (project / "dvc.yaml").write_text(DVC_YAML.replace("open('episodes.txt', 'w')", "exit(3) or open('episodes.txt', 'w')"))
+    failing = DVC_YAML.replace("open('episodes.txt', 'w')", "exit(3) or open('episodes.txt', 'w')")
+    (project / "dvc.yaml").write_text(failing)
     state, part = _part(project)
-    _, first, returncode = pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state, force=True)
+    _, first, returncode = pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state,
+                                                     force=True)
     assert returncode != 0 and [s["name"] for s in first] == ["scenario", "train", "evaluate"]
     (project / "dvc.yaml").write_text(DVC_YAML)
     state = pipeline_time.RunState.load(project / "state.json")  # as a new process would
     part = state.new_part([])
-    _, second, returncode = pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state, force=False)
+    _, second, returncode = pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state,
+                                                      force=False)
     assert returncode == 0 and [s["name"] for s in second] == ["evaluate", "table"]
     wall, merged = pipeline_time.merge_parts(pipeline_time.RunState.load(project / "state.json").state["parts"])
     assert [(s["name"], s["pieces"]) for s in merged] == [("scenario", 1), ("train", 1), ("evaluate", 2), ("table", 1)]
@@ -102,3 +105,33 @@ def test_a_cut_run_resumes_where_it_stopped_and_its_parts_add_up(project):
     assert merged[2]["wall_s"] == pytest.approx(first[2]["wall_s"] + second[0]["wall_s"])
     assert merged[3]["started_s"] == pytest.approx(parts[0]["wall_s"] + second[1]["started_s"])
     assert (project / "table.txt").read_text() == "p"
+
+
+def test_projections_reproduce_the_measured_machine_and_scale_the_parallel_stages():
+    """On the measured core count the model gives back the measured times; on 8 cores the trainings run
+    all six at once and an evaluation keeps its fixed start and spreads the rest; on SLURM the
+    critical path runs through the longest training run and the longest evaluation."""
+    runs = [{"stage": "train", "wall_s": 100.0} for _ in range(6)]
+    stages = [{"name": "scenario", "kind": "other", "wall_s": 5.0},
+              {"name": "train", "kind": "training", "wall_s": 330.0},  # 3 waves of 100 s on 2 cores, + 30 s
+              {"name": "evaluate@a-light", "kind": "downstream", "wall_s": 108.5},
+              {"name": "evaluate@b-light", "kind": "downstream", "wall_s": 58.5},
+              {"name": "table", "kind": "downstream", "wall_s": 2.0}]
+    upstreams = {"scenario": set(), "train": {"scenario"}, "evaluate@a-light": {"train"},
+                 "evaluate@b-light": {"train"}, "table": {"evaluate@a-light", "evaluate@b-light"}}
+    start = pipeline_time.EVALUATION_START_S
+    result = pipeline_time.projections(stages, runs, {"evaluate"}, upstreams, measured_cores=2)
+    assert result["laptop_2_cores"]["dvc_repro_wall_s"] == pytest.approx(sum(s["wall_s"] for s in stages))
+    eight = 5.0 + 330.0 * 100.0 / 300.0 + (start + (108.5 - start) / 4) + (start + (58.5 - start) / 4) + 2.0
+    assert result["workstation_8_cores"]["dvc_repro_wall_s"] == pytest.approx(eight)
+    slurm = 5.0 + 330.0 * 100.0 / 300.0 + (start + (108.5 - start) / 4) + 2.0  # the longer evaluation only
+    assert result["slurm_cluster"]["critical_path_s"] == pytest.approx(slurm)
+
+
+def test_evaluation_stages_are_found_by_their_command(tmp_path):
+    (tmp_path / "dvc.yaml").write_text(
+        "stages:\n  evaluate:\n    matrix: {m: [a]}\n    cmd: python -m srmpc evaluation.controller=${item.m}\n"
+        "  sb3:\n    foreach: [light]\n    do:\n      cmd: python -m srmpc scenario=${item}\n"
+        "  train:\n    cmd: python -m srmpc stage=train agent=ppo\n"
+        "  table:\n    cmd: python pipelines/paper_table.py\n")
+    assert pipeline_time.evaluation_stage_names(tmp_path / "dvc.yaml") == {"evaluate", "sb3"}

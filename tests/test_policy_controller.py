@@ -1,11 +1,10 @@
 """The trained actor as a controller: numpy mode equals the torch actor's deterministic action."""
 
 import numpy as np
+import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-
-import pytest
 
 from srmpc.agents.checkpoint import CheckpointError, save_policy
 from srmpc.agents.networks import make_actor
@@ -44,5 +43,6 @@ def test_a_policy_file_loads_without_torchrl_to_the_same_weights(tmp_path):
         assert np.array_equal(got, expected)
     assert loaded.squash
     save_policy(actor.state_dict(), {**metadata, "hidden_sizes": [16, 16]}, tmp_path / "wrong.pt")
-    with pytest.raises(CheckpointError, match=r"wrong.pt: the actor's layers .* do not match its sizes \[30, 16, 16, 2\]"):
+    mismatch = r"wrong.pt: the actor's layers .* do not match its sizes \[30, 16, 16, 2\]"
+    with pytest.raises(CheckpointError, match=mismatch):
         PolicyController.from_policy_file(tmp_path / "wrong.pt", LOW, HIGH)
