@@ -32,12 +32,15 @@ s_j couple every stage).  It is solved by
    keeps weight D' = D_r h_sigma / (D_r + h_sigma));
 2. a Riccati recursion over the stages on the augmented state (x_k, u_{k-1}) (6 states,
    2 inputs), which makes the input-rate cost stage-wise;
-3. a Schur complement on s: w(s) = w_0 + W s with W's columns from the same factorization
-   (one backward-forward substitution per observed vehicle), then a V_obs x V_obs Cholesky
-   solve of (H_s + C_s^T W) s = -(g_s + C_s^T w_0).
+3. a Schur complement on s: w(s) = w_0 + W s, then a V_obs x V_obs Cholesky solve of
+   (H_s + C_s^T W) s = -(g_s + C_s^T w_0).  Neither W nor w_0 is formed: the Riccati backward
+   pass maps a model gradient g linearly to scaled feedforwards e_k (N, 2) with
+   g_i^T K^-1 g_j = sum_k e^(i)_k . e^(j)_k (K the reduced Hessian), so one backward pass per
+   observed vehicle gives C_s^T W, the backward pass of w_0 gives C_s^T w_0, and w(s) is one
+   forward pass from e^(0) + sum_j s_j e^(j).
 
-Per iteration this costs one factorization, V_obs + 2 substitutions and O(N V) vector work:
-linear in N, with 4x4 and 2x2 dense blocks only.
+Per iteration this costs one factorization, V_obs + 2 backward passes, 2 forward passes and
+O(N V) vector work: linear in N, with 4x4 and 2x2 dense blocks only.
 
 Termination: inequality residual max|C w - h - t| <= tol, dual residual (stationarity with the
 dynamics multipliers nu recovered by the backward recursion nu_k = A_k^T nu_{k+1} - grad_x_k L)
@@ -96,25 +99,26 @@ _Primal = namedtuple("_Primal", ["states", "inputs", "slacks", "sigmas"])
 """A primal point w or direction dw: x (N + 1, 4), u (N, 2), s (V,), sigma (N, V)."""
 _Inequalities = namedtuple("_Inequalities", [
     "offsets", "active", "has_sigma", "n_active", "values", "t", "z", "d", "residuals", "gamma",
-    "dt", "dz", "dt_aff", "dz_aff", "zero_rows", "zero_bounds"])
+    "dt", "dz", "dt_aff", "dz_aff", "zero_rows", "zero_bounds", "t_inverse", "z_inverse"])
 """The m inequalities C w >= h: group starts (``_offsets``), which exist (active (m,), has_sigma
 (N, V), their count n_active), then vectors (m,): a^T w - b, slacks t, multipliers z, D = z / t,
 r_p = a^T w - b - t, gamma, the step (dt, dz) and the predictor's (dt_aff, dz_aff); zero_rows
-(N, V) and zero_bounds (8,) make ``_constraint_values`` of a direction give C dw."""
+(N, V) and zero_bounds (8,) make ``_constraint_values`` of a direction give C dw; 1 / t and
+1 / z (m,) at the current point (0 on inactive rows)."""
 _Gradients = namedtuple("_Gradients", ["states", "inputs", "slacks", "sigmas", "model_states",
                                        "model_inputs", "model_slacks", "nu", "nu_next"])
 """grad f on x_1..N (N, 4), u (N, 2), s (V,), sigma (N, V); the model gradient grad f - C^T gamma
 with each sigma eliminated on x (N, 4), u (N, 2), s (V,); scratch nu_k, nu_{k+1} (4,)."""
 _Newton = namedtuple("_Newton", [
     "state_hessians", "input_hessians", "row_weight", "sigma_hessian", "slack_hessian",
-    "cost_to_go", "gains", "input_cholesky", "scaled_cross", "cost_to_go_vector", "feedforward",
-    "column_states", "column_inputs", "column_gradients", "zero_input_gradients", "schur_base",
-    "schur", "zero4", "zero2"])
+    "cost_to_go", "gains", "input_cholesky", "scaled_cross", "cost_to_go_vector",
+    "scaled_feedforward", "column_scaled", "column_gradients", "zero_input_gradients",
+    "schur_base", "schur"])
 """The factorized Newton matrix: stage Hessians H^x (N, 4, 4), H^u (N, 2), row weights D' and
 sigma Hessians h_sigma (N, V), slack Hessians H_s (V,); the Riccati factorization (see
-``_riccati_factorize``) and its solve scratch (N + 1, 6), (N, 2); the columns W of w(s) as
-x (V, N + 1, 4), u (V, N, 2) with their gradients (N, 4), (N, 2); H_s + C_s^T W (V, V) and its
-Cholesky copy; zero x_0 (4,) and u_{-1} (2,)."""
+``_riccati_factorize``), its backward pass's scratch p_k (N + 1, 6) and e_k (N, 2); the
+columns W of w(s) as their backward passes' e^(j) (V, N, 2) with their gradients (N, 4),
+(N, 2); H_s + C_s^T W (V, V) and its Cholesky copy."""
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -196,9 +200,10 @@ def _stage_input_hessian(b_k, nxt, input_hessians, k, m):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k):
+def _stage_gains(m, a_k, rate_hessian, cholesky, s_hat, y, gains, k):
     """Stage k's S^ = [m A_k, -2S] (2, 6), Y = L^-1 S^ (2, 6) into ``y`` and K_k = -L^-T Y
-    (2, 6) into gains[k]."""
+    (2, 6) into gains[k]; ``cholesky`` is L as (1 / l00, l10, 1 / l11)."""
+    inverse00, l10, inverse11 = cholesky[0], cholesky[1], cholesky[2]
     for i in range(2):
         for c in range(4):
             acc = 0.0
@@ -209,13 +214,13 @@ def _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k):
         s_hat[i, 5] = 0.0
         s_hat[i, 4 + i] = -rate_hessian[i]
     for c in range(6):
-        y0 = s_hat[0, c] / l00
-        y1 = (s_hat[1, c] - l10 * y0) / l11
+        y0 = s_hat[0, c] * inverse00
+        y1 = (s_hat[1, c] - l10 * y0) * inverse11
         y[0, c] = y0
         y[1, c] = y1
-        g1 = -y1 / l11
+        g1 = -y1 * inverse11
         gains[k, 1, c] = g1
-        gains[k, 0, c] = -(y0 + l10 * g1) / l00
+        gains[k, 0, c] = -(y0 + l10 * g1) * inverse00
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -262,7 +267,7 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
         R^ = H^u_k + B~^T P B~ = L L^T,  S^ = [(B^T Pxx + Pux) A_k, -2S],  Y = L^-1 S^,
         K_k = -R^^-1 S^ = -L^-T Y,  P_k = blockdiag(H^x_k + A_k^T Pxx A_k, 2S) - Y^T Y.
 
-    Writes P_k (k = 1..N; P_N = blockdiag(H^x_N, 0)), K_k, L_k as (l00, l10, l11) and Y_k
+    Writes P_k (k = 1..N; P_N = blockdiag(H^x_N, 0)), K_k, L_k as (1 / l00, l10, 1 / l11) and Y_k
     (k = 0..N-1).  Returns False if some R^ is not (numerically) positive definite.
     """
     horizon = state_matrices.shape[0]
@@ -285,11 +290,11 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
         if not pivot > CHOLESKY_PIVOT_FLOOR * r11:
             return False
         l11 = np.sqrt(pivot)
-        input_cholesky[k, 0] = l00
+        input_cholesky[k, 0] = 1.0 / l00
         input_cholesky[k, 1] = l10
-        input_cholesky[k, 2] = l11
+        input_cholesky[k, 2] = 1.0 / l11
         y = scaled_cross[k]
-        _stage_gains(m, a_k, rate_hessian, l00, l10, l11, s_hat, y, gains, k)
+        _stage_gains(m, a_k, rate_hessian, input_cholesky[k], s_hat, y, gains, k)
         if k == 0:
             break
         cur = p[k]
@@ -298,39 +303,36 @@ def _riccati_factorize(state_matrices, input_matrices, state_hessians, input_hes
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _riccati_backward(state_matrices, input_matrices, affine_offsets, state_gradients,
-                      input_gradients, cost_to_go, input_cholesky, scaled_cross, homogeneous,
-                      cost_to_go_vector, feedforward):
-    """Backward pass of ``_riccati_solve``: cost-to-go vectors p_k (N + 1, 6) and feedforward
-    inputs k_k (N, 2)."""
+def _riccati_backward(state_matrices, input_matrices, state_gradients, input_gradients,
+                      cost_to_go, input_cholesky, scaled_cross, cost_to_go_vector,
+                      scaled_feedforward):
+    """Backward pass of the LQ model with the factorization of ``_riccati_factorize``.
+
+    Gradients: g^x_k on x_k (k = 1..N, row k - 1), g^u_k on u_k; the dynamics are homogeneous
+    (c_k = 0, x_0 = 0, u_{-1} = 0: every iterate satisfies them exactly).  With p_{N} = (g^x_N, 0):
+    v = p_{k+1}, r^ = g^u_k + B^T v_x + v_u, e_k = L^-1 r^, p_k = (g^x_k + A^T v_x, 0) - Y_k^T e_k.
+    Writes e_k (N, 2) into ``scaled_feedforward`` (the feedforward input is k_k = -L^-T e_k);
+    p_k (N + 1, 6) is scratch.  e is linear in the gradients and the model's optimal value is
+    -1/2 sum_k |e_k|^2, so g_i^T K^-1 g_j = sum_k e^(i)_k . e^(j)_k (K the reduced Hessian).
+    """
     horizon = state_matrices.shape[0]
     p = cost_to_go_vector
     for a in range(6):
         p[horizon, a] = 0.0
     for a in range(4):
         p[horizon, a] = state_gradients[horizon - 1, a]
-    v = np.empty(6)
     for k in range(horizon - 1, -1, -1):
-        nxt = cost_to_go[k + 1]
-        for a in range(6):
-            acc = p[k + 1, a]
-            if not homogeneous:
-                for b in range(4):
-                    acc += nxt[a, b] * affine_offsets[k, b]
-            v[a] = acc
+        v = p[k + 1]
         b_k = input_matrices[k]
         r0 = input_gradients[k, 0] + v[4]
         r1 = input_gradients[k, 1] + v[5]
         for r in range(4):
             r0 += b_k[r, 0] * v[r]
             r1 += b_k[r, 1] * v[r]
-        l00 = input_cholesky[k, 0]
-        l10 = input_cholesky[k, 1]
-        l11 = input_cholesky[k, 2]
-        e0 = r0 / l00
-        e1 = (r1 - l10 * e0) / l11
-        feedforward[k, 1] = -e1 / l11
-        feedforward[k, 0] = -(e0 + l10 * feedforward[k, 1]) / l00
+        e0 = r0 * input_cholesky[k, 0]
+        e1 = (r1 - input_cholesky[k, 1] * e0) * input_cholesky[k, 2]
+        scaled_feedforward[k, 0] = e0
+        scaled_feedforward[k, 1] = e1
         if k == 0:
             break
         a_k = state_matrices[k]
@@ -345,54 +347,35 @@ def _riccati_backward(state_matrices, input_matrices, affine_offsets, state_grad
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _riccati_forward(state_matrices, input_matrices, affine_offsets, initial_state,
-                     initial_input, gains, homogeneous, feedforward, states, inputs):
-    """Forward pass of ``_riccati_solve``: u_k = K_k (x_k, u_{k-1}) + k_k and the dynamics from
-    (x_0, u_{-1}); writes states (N + 1, 4) and inputs (N, 2)."""
+def _riccati_forward(state_matrices, input_matrices, gains, input_cholesky, scaled_feedforward,
+                     states, inputs):
+    """Forward pass of the LQ model: u_k = K_k (x_k, u_{k-1}) + k_k, k_k = -L^-T e_k, and the
+    homogeneous dynamics from (x_0, u_{-1}) = 0; writes states (N + 1, 4) and inputs (N, 2)."""
     horizon = state_matrices.shape[0]
-    augmented = np.empty(6)
     for a in range(4):
-        augmented[a] = 0.0 if homogeneous else initial_state[a]
-        states[0, a] = augmented[a]
-    augmented[4] = 0.0 if homogeneous else initial_input[0]
-    augmented[5] = 0.0 if homogeneous else initial_input[1]
+        states[0, a] = 0.0
+    previous0 = 0.0
+    previous1 = 0.0
     for k in range(horizon):
-        for i in range(2):
-            acc = feedforward[k, i]
-            for c in range(6):
-                acc += gains[k, i, c] * augmented[c]
-            inputs[k, i] = acc
+        x = states[k]
+        g = gains[k]
+        feed1 = -scaled_feedforward[k, 1] * input_cholesky[k, 2]
+        feed0 = -(scaled_feedforward[k, 0] + input_cholesky[k, 1] * feed1) * input_cholesky[k, 0]
+        u0 = (feed0 + g[0, 0] * x[0] + g[0, 1] * x[1] + g[0, 2] * x[2] + g[0, 3] * x[3]
+              + g[0, 4] * previous0 + g[0, 5] * previous1)
+        u1 = (feed1 + g[1, 0] * x[0] + g[1, 1] * x[1] + g[1, 2] * x[2] + g[1, 3] * x[3]
+              + g[1, 4] * previous0 + g[1, 5] * previous1)
+        inputs[k, 0] = u0
+        inputs[k, 1] = u1
         a_k = state_matrices[k]
         b_k = input_matrices[k]
         for r in range(4):
-            acc = 0.0 if homogeneous else affine_offsets[k, r]
+            acc = b_k[r, 0] * u0 + b_k[r, 1] * u1
             for c in range(4):
-                acc += a_k[r, c] * augmented[c]
-            acc += b_k[r, 0] * inputs[k, 0] + b_k[r, 1] * inputs[k, 1]
+                acc += a_k[r, c] * x[c]
             states[k + 1, r] = acc
-        for r in range(4):
-            augmented[r] = states[k + 1, r]
-        augmented[4] = inputs[k, 0]
-        augmented[5] = inputs[k, 1]
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _riccati_solve(state_matrices, input_matrices, affine_offsets, state_gradients,
-                   input_gradients, initial_state, initial_input, cost_to_go, gains,
-                   input_cholesky, scaled_cross, homogeneous, cost_to_go_vector, feedforward,
-                   states, inputs):
-    """Minimize the LQ model with the factorization of ``_riccati_factorize``.
-
-    Gradients: g^x_k on x_k (k = 1..N, row k - 1), g^u_k on u_k.  With ``homogeneous`` the
-    offsets c_k and the initial (x_0, u_{-1}) are taken as zero (columns of W).
-    Backward: v = P_{k+1} (c_k, 0) + p_{k+1}, r^ = g^u_k + B^T v_x + v_u, e = L^-1 r^,
-    k_k = -L^-T e, p_k = (g^x_k + A^T v_x, 0) - Y_k^T e.  Forward: u_k = K_k (x_k, u_{k-1}) + k_k.
-    """
-    _riccati_backward(state_matrices, input_matrices, affine_offsets, state_gradients,
-                      input_gradients, cost_to_go, input_cholesky, scaled_cross, homogeneous,
-                      cost_to_go_vector, feedforward)
-    _riccati_forward(state_matrices, input_matrices, affine_offsets, initial_state,
-                     initial_input, gains, homogeneous, feedforward, states, inputs)
+        previous0 = u0
+        previous1 = u1
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -532,7 +515,8 @@ def _starting_inequalities(qp, point, offsets, active, has_sigma, n_active):
             z[i] = INITIAL_MULTIPLIER
     return _Inequalities(offsets, active, has_sigma, n_active, values, t, z, np.empty(m),
                          np.zeros(m), np.empty(m), np.zeros(m), np.zeros(m), np.zeros(m),
-                         np.zeros(m), np.zeros((horizon, n_slots)), np.zeros(8))
+                         np.zeros(m), np.zeros((horizon, n_slots)), np.zeros(8), np.zeros(m),
+                         np.zeros(m))
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -545,9 +529,9 @@ def _allocate_workspace(horizon, n_slots):
         np.empty((horizon, 4, 4)), np.empty((horizon, 2)), np.zeros((horizon, n_slots)),
         np.ones((horizon, n_slots)), np.empty(n_slots), np.empty((horizon + 1, 6, 6)),
         np.empty((horizon, 2, 6)), np.empty((horizon, 3)), np.empty((horizon, 2, 6)),
-        np.empty((horizon + 1, 6)), np.empty((horizon, 2)), np.empty((n_slots, horizon + 1, 4)),
-        np.empty((n_slots, horizon, 2)), np.zeros((horizon, 4)), np.zeros((horizon, 2)),
-        np.empty((n_slots, n_slots)), np.empty((n_slots, n_slots)), np.zeros(4), np.zeros(2))
+        np.empty((horizon + 1, 6)), np.empty((horizon, 2)), np.empty((n_slots, horizon, 2)),
+        np.zeros((horizon, 4)), np.zeros((horizon, 2)), np.empty((n_slots, n_slots)),
+        np.empty((n_slots, n_slots)))
     direction = _Primal(np.empty((horizon + 1, 4)), np.empty((horizon, 2)), np.zeros(n_slots),
                         np.zeros((horizon, n_slots)))
     return gradients, newton, direction
@@ -646,7 +630,7 @@ def _residuals(qp, point, ineq, gradients):
     (last_input, state_matrices, input_matrices, _, tracking_reference, coefficients, row_lower,
      sigma_upper, n_observed, state_weight_hessian, input_weight_hessian, rate_hessian,
      slack_weights, bounds) = qp
-    (offsets, active, has_sigma, n_active, values, t, z, _, residuals, _, _, _, _, _, _,
+    (offsets, active, has_sigma, n_active, values, t, z, _, residuals, _, _, _, _, _, _, _, _,
      _) = ineq
     (state_gradient, input_gradient, slack_gradient, sigma_gradient, _, _, _, nu,
      nu_next) = gradients
@@ -681,10 +665,17 @@ def _convergence_status(primal_residual, mu, dual_residual, dual_scale, toleranc
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _barrier_weights(active, t, z, d):
-    """D = z / t (m,) on the active inequalities, 0 elsewhere, into ``d``."""
+def _barrier_weights(active, t, z, d, t_inverse, z_inverse):
+    """1 / t, 1 / z and D = z / t (m,) on the active inequalities, 0 elsewhere."""
     for i in range(d.shape[0]):
-        d[i] = z[i] / t[i] if active[i] else 0.0
+        if active[i]:
+            t_inverse[i] = 1.0 / t[i]
+            z_inverse[i] = 1.0 / z[i]
+            d[i] = z[i] * t_inverse[i]
+        else:
+            t_inverse[i] = 0.0
+            z_inverse[i] = 0.0
+            d[i] = 0.0
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -740,33 +731,35 @@ def _slack_column_gradient(j, d_slack, w_c2, coefficients, row_weight, slack_hes
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _slack_schur_complement(n_observed, coefficients, row_weight, slack_hessian, column_states,
-                            schur_base):
-    """H_s + C_s^T W (V_obs x V_obs, C_s^T W_j = sum_k D'_ki n_ki . Wx_j,k) into
-    ``schur_base``."""
+def _slack_schur_complement(n_observed, slack_hessian, column_scaled, schur_base):
+    """H_s + C_s^T W (V_obs x V_obs) into ``schur_base``: C_s^T W_j = -g_i^T K^-1 g_j
+    = -sum_k e^(i)_k . e^(j)_k (see ``_riccati_backward``), symmetric."""
+    horizon = column_scaled.shape[1]
     for i in range(n_observed):
-        for j in range(n_observed):
-            acc = slack_hessian[i] if i == j else 0.0
-            for k in range(row_weight.shape[0]):
-                weight = row_weight[k, i]
-                for a in range(3):
-                    acc += weight * coefficients[k, i, a] * column_states[j, k + 1, a]
-            schur_base[i, j] = acc
+        for j in range(i + 1):
+            acc = 0.0
+            for k in range(horizon):
+                acc += (column_scaled[i, k, 0] * column_scaled[j, k, 0]
+                        + column_scaled[i, k, 1] * column_scaled[j, k, 1])
+            schur_base[i, j] = -acc
+            schur_base[j, i] = -acc
+        schur_base[i, i] += slack_hessian[i]
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _factorize_newton_matrix(qp, ineq, newton):
     """Step: factorize the Newton matrix at the current point -- D, the stage Hessians, the
-    Riccati recursion, the columns W of w(s) and the Schur complement on s.  Returns False if
+    Riccati recursion, the columns W of w(s) (backward passes only) and the Schur complement on
+    s.  Returns False if
     some R^ is not (numerically) positive definite."""
-    (_, state_matrices, input_matrices, affine_offsets, _, coefficients, _, _, n_observed,
+    (_, state_matrices, input_matrices, _, _, coefficients, _, _, n_observed,
      state_weight_hessian, input_weight_hessian, rate_hessian, slack_weights, _) = qp
-    (offsets, active, has_sigma, _, _, t, z, d, _, _, _, _, _, _, _, _) = ineq
+    (offsets, active, has_sigma, _, _, t, z, d, _, _, _, _, _, _, _, _, t_inverse,
+     z_inverse) = ineq
     (state_hessians, input_hessians, row_weight, sigma_hessian, slack_hessian, cost_to_go,
-     gains, input_cholesky, scaled_cross, cost_to_go_vector, feedforward, column_states,
-     column_inputs, column_gradients, zero_input_gradients, schur_base, _, zero4,
-     zero2) = newton
-    _barrier_weights(active, t, z, d)
+     gains, input_cholesky, scaled_cross, cost_to_go_vector, _, column_scaled,
+     column_gradients, zero_input_gradients, schur_base, _) = newton
+    _barrier_weights(active, t, z, d, t_inverse, z_inverse)
     _stage_hessians(offsets, d, has_sigma, n_observed, coefficients, state_weight_hessian,
                     input_weight_hessian, rate_hessian, slack_weights[3], row_weight,
                     sigma_hessian, state_hessians, input_hessians)
@@ -776,17 +769,16 @@ def _factorize_newton_matrix(qp, ineq, newton):
     for j in range(n_observed):
         _slack_column_gradient(j, d[offsets[1] + j], slack_weights[1], coefficients,
                                row_weight, slack_hessian, column_gradients)
-        _riccati_solve(state_matrices, input_matrices, affine_offsets, column_gradients,
-                       zero_input_gradients, zero4, zero2, cost_to_go, gains, input_cholesky,
-                       scaled_cross, True, cost_to_go_vector, feedforward, column_states[j],
-                       column_inputs[j])
-    _slack_schur_complement(n_observed, coefficients, row_weight, slack_hessian, column_states,
-                            schur_base)
+        _riccati_backward(state_matrices, input_matrices, column_gradients,
+                          zero_input_gradients, cost_to_go, input_cholesky, scaled_cross,
+                          cost_to_go_vector, column_scaled[j])
+    _slack_schur_complement(n_observed, slack_hessian, column_scaled, schur_base)
     return True
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _model_gamma(phase, sigma_centering, mu, active, t, d, residuals, dt_aff, dz_aff, gamma):
+def _model_gamma(phase, sigma_centering, mu, active, t_inverse, d, residuals, dt_aff, dz_aff,
+                 gamma):
     """gamma (m,) of the Newton model: -D r_p for the predictor (phase 0), plus
     (sigma mu - dt_aff dz_aff) / t for the corrector (phase 1); 0 on inactive rows."""
     for i in range(gamma.shape[0]):
@@ -795,7 +787,7 @@ def _model_gamma(phase, sigma_centering, mu, active, t, d, residuals, dt_aff, dz
         elif phase == 0:
             gamma[i] = -d[i] * residuals[i]
         else:
-            gamma[i] = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) / t[i]
+            gamma[i] = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) * t_inverse[i]
                         - d[i] * residuals[i])
 
 
@@ -832,32 +824,31 @@ def _model_gradient(offsets, gamma, d, has_sigma, n_observed, coefficients, sigm
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _slack_schur_rhs(n_observed, coefficients, row_weight, model_slack_gradient, step_states,
+def _slack_schur_rhs(n_observed, model_slack_gradient, column_scaled, scaled_feedforward,
                      schur_base, schur, step_slacks):
     """-(g_s + C_s^T dw_0) (V_obs,) into ``step_slacks`` and a fresh copy of H_s + C_s^T W into
-    ``schur`` (the Cholesky solve overwrites both); dw_0 = ``step_states`` for s = 0."""
+    ``schur`` (the Cholesky solve overwrites both); dw_0 is the model's minimizer for s = 0,
+    whose backward pass wrote e^(0) = ``scaled_feedforward``: C_s^T dw_0 = -sum_k e^(i)_k . e^(0)_k."""
+    horizon = scaled_feedforward.shape[0]
     for i in range(n_observed):
         acc = model_slack_gradient[i]
-        for k in range(row_weight.shape[0]):
-            weight = row_weight[k, i]
-            for a in range(3):
-                acc += weight * coefficients[k, i, a] * step_states[k + 1, a]
+        for k in range(horizon):
+            acc -= (column_scaled[i, k, 0] * scaled_feedforward[k, 0]
+                    + column_scaled[i, k, 1] * scaled_feedforward[k, 1])
         step_slacks[i] = -acc
         for j in range(n_observed):
             schur[i, j] = schur_base[i, j]
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _add_slack_columns(n_observed, step_slacks, column_states, column_inputs, step_states,
-                       step_inputs):
-    """dw = dw_0 + W ds: adds the columns W_j (x (N + 1, 4), u (N, 2)) times ds_j."""
+def _add_slack_columns(n_observed, step_slacks, column_scaled, scaled_feedforward):
+    """dw = dw_0 + W ds, on the backward passes: e = e^(0) + sum_j ds_j e^(j) (N, 2) into
+    ``scaled_feedforward`` (e is linear in the model gradient)."""
     for j in range(n_observed):
         s_j = step_slacks[j]
-        for k in range(step_inputs.shape[0]):
-            for a in range(4):
-                step_states[k + 1, a] += s_j * column_states[j, k + 1, a]
-            step_inputs[k, 0] += s_j * column_inputs[j, k, 0]
-            step_inputs[k, 1] += s_j * column_inputs[j, k, 1]
+        for k in range(scaled_feedforward.shape[0]):
+            scaled_feedforward[k, 0] += s_j * column_scaled[j, k, 0]
+            scaled_feedforward[k, 1] += s_j * column_scaled[j, k, 1]
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -882,28 +873,24 @@ def _safety_slack_direction(offsets, gamma, d, has_sigma, n_observed, coefficien
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _inequality_direction(phase, sigma_centering, mu, active, t, z, d, direction_values,
-                          residuals, dt_aff, dz_aff, dt, dz):
+def _inequality_direction(active, z, d, t_inverse, z_inverse, direction_values, residuals,
+                          gamma, dt, dz):
     """dt = C dw + r_p and dz = (sigma mu - dt_aff dz_aff) / t - z - D dt (predictor: without the
-    first term) (m,), from ``direction_values`` = C dw.  Returns the largest primal and dual
-    steps to the boundary t = 0, z = 0 (inf if unbounded)."""
-    step_primal = np.inf
-    step_dual = np.inf
+    first term) = gamma - z - D C dw (m,), from ``direction_values`` = C dw.  Returns the largest
+    primal and dual steps to the boundary t = 0, z = 0 (inf if unbounded)."""
+    primal_ratio = 0.0
+    dual_ratio = 0.0
     for i in range(dt.shape[0]):
         if not active[i]:
             continue
         dti = direction_values[i] + residuals[i]
-        if phase == 0:
-            dzi = -z[i] - d[i] * dti
-        else:
-            dzi = ((sigma_centering * mu - dt_aff[i] * dz_aff[i]) / t[i]
-                   - z[i] - d[i] * dti)
+        dzi = gamma[i] - z[i] - d[i] * direction_values[i]
         dt[i] = dti
         dz[i] = dzi
-        if dti < 0.0:
-            step_primal = min(step_primal, -t[i] / dti)
-        if dzi < 0.0:
-            step_dual = min(step_dual, -z[i] / dzi)
+        primal_ratio = max(primal_ratio, -dti * t_inverse[i])
+        dual_ratio = max(dual_ratio, -dzi * z_inverse[i])
+    step_primal = 1.0 / primal_ratio if primal_ratio > 0.0 else np.inf
+    step_dual = 1.0 / dual_ratio if dual_ratio > 0.0 else np.inf
     return step_primal, step_dual
 
 
@@ -916,36 +903,37 @@ def _newton_direction(phase, sigma_centering, mu, qp, ineq, gradients, newton, d
     largest dual step); ok is False if the Schur complement on s is not positive definite or a
     step length is NaN.
     """
-    (_, state_matrices, input_matrices, affine_offsets, _, coefficients, _, _, n_observed, _, _,
-     _, _, _) = qp
-    (offsets, active, has_sigma, _, values, t, z, d, residuals, gamma, dt, dz, dt_aff, dz_aff,
-     zero_rows, zero_bounds) = ineq
-    (_, _, row_weight, sigma_hessian, _, cost_to_go, gains, input_cholesky, scaled_cross,
-     cost_to_go_vector, feedforward, column_states, column_inputs, _, _, schur_base, schur,
-     zero4, zero2) = newton
+    (_, state_matrices, input_matrices, _, _, coefficients, _, _, n_observed, _, _, _, _,
+     _) = qp
+    (offsets, active, has_sigma, _, values, _, z, d, residuals, gamma, dt, dz, dt_aff, dz_aff,
+     zero_rows, zero_bounds, t_inverse, z_inverse) = ineq
+    (_, _, _, sigma_hessian, _, cost_to_go, gains, input_cholesky, scaled_cross,
+     cost_to_go_vector, scaled_feedforward, column_scaled, _, _, schur_base, schur) = newton
     (state_gradient, input_gradient, slack_gradient, sigma_gradient, model_state_gradient,
      model_input_gradient, model_slack_gradient, _, _) = gradients
     step_states, step_inputs, step_slacks, step_sigmas = direction
-    _model_gamma(phase, sigma_centering, mu, active, t, d, residuals, dt_aff, dz_aff, gamma)
+    _model_gamma(phase, sigma_centering, mu, active, t_inverse, d, residuals, dt_aff, dz_aff,
+                 gamma)
     _model_gradient(offsets, gamma, d, has_sigma, n_observed, coefficients, sigma_hessian,
                     state_gradient, input_gradient, slack_gradient, sigma_gradient,
                     model_state_gradient, model_input_gradient, model_slack_gradient)
-    _riccati_solve(state_matrices, input_matrices, affine_offsets, model_state_gradient,
-                   model_input_gradient, zero4, zero2, cost_to_go, gains, input_cholesky,
-                   scaled_cross, True, cost_to_go_vector, feedforward, step_states, step_inputs)
-    _slack_schur_rhs(n_observed, coefficients, row_weight, model_slack_gradient, step_states,
+    _riccati_backward(state_matrices, input_matrices, model_state_gradient, model_input_gradient,
+                      cost_to_go, input_cholesky, scaled_cross, cost_to_go_vector,
+                      scaled_feedforward)
+    _slack_schur_rhs(n_observed, model_slack_gradient, column_scaled, scaled_feedforward,
                      schur_base, schur, step_slacks)
     if not _cholesky_solve_in_place(schur, step_slacks, n_observed):
         return False, np.inf, np.inf
-    _add_slack_columns(n_observed, step_slacks, column_states, column_inputs, step_states,
-                       step_inputs)
+    _add_slack_columns(n_observed, step_slacks, column_scaled, scaled_feedforward)
+    _riccati_forward(state_matrices, input_matrices, gains, input_cholesky, scaled_feedforward,
+                     step_states, step_inputs)
     _safety_slack_direction(offsets, gamma, d, has_sigma, n_observed, coefficients,
                             sigma_gradient, sigma_hessian, step_states, step_slacks,
                             step_sigmas)
     _constraint_values(step_states, step_inputs, step_slacks, step_sigmas, coefficients,
                        zero_rows, zero_rows, zero_bounds, offsets, values)
-    step_primal, step_dual = _inequality_direction(phase, sigma_centering, mu, active, t, z, d,
-                                                   values, residuals, dt_aff, dz_aff, dt, dz)
+    step_primal, step_dual = _inequality_direction(active, z, d, t_inverse, z_inverse, values,
+                                                   residuals, gamma, dt, dz)
     if np.isnan(step_primal) or np.isnan(step_dual):
         return False, step_primal, step_dual
     return True, step_primal, step_dual
@@ -955,7 +943,7 @@ def _newton_direction(phase, sigma_centering, mu, qp, ineq, gradients, newton, d
 def _mehrotra_centering(ineq, step_primal, step_dual, mu):
     """Step: keep the predictor's (dt, dz) as (dt_aff, dz_aff) and return Mehrotra's centering
     sigma = (mu_aff / mu)^3, mu_aff the complementarity after the predictor's step."""
-    (_, active, _, n_active, _, t, z, _, _, _, dt, dz, dt_aff, dz_aff, _, _) = ineq
+    (_, active, _, n_active, _, t, z, _, _, _, dt, dz, dt_aff, dz_aff, _, _, _, _) = ineq
     mu_affine = 0.0
     alpha_primal = min(1.0, step_primal)
     alpha_dual = min(1.0, step_dual)
@@ -983,7 +971,7 @@ def _update_iterate(point, direction, ineq, alpha_primal, alpha_dual, n_observed
     z += alpha_dual dz."""
     states, inputs, slacks, sigmas = point
     step_states, step_inputs, step_slacks, step_sigmas = direction
-    (_, active, _, _, _, t, z, _, _, _, dt, dz, _, _, _, _) = ineq
+    (_, active, _, _, _, t, z, _, _, _, dt, dz, _, _, _, _, _, _) = ineq
     for k in range(step_inputs.shape[0]):
         for a in range(4):
             states[k + 1, a] += alpha_primal * step_states[k + 1, a]
