@@ -81,7 +81,12 @@ def load_actor_mean_layers(path: Path) -> tuple[list[np.ndarray], list[np.ndarra
     weights and (out,) biases in layer order: what :func:`load_actor` rebuilds, without TorchRL (whose
     import costs every evaluation process about 2 s). One-line :class:`CheckpointError` if it does not fit
     the file's ``observation_dim``, ``hidden_sizes`` and action size."""
-    saved = read_policy_file(path)
+    return actor_mean_layers(read_policy_file(path), path)
+
+
+def actor_mean_layers(saved: dict[str, Any], path: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`load_actor_mean_layers` of the dict :func:`read_policy_file` already read from ``path``
+    (named in the errors)."""
     try:
         state = saved["actor"]
         indices = sorted({int(key[len(ACTOR_MEAN_PREFIX):].split(".")[0]) for key in state

@@ -25,7 +25,7 @@ class PolicyController:
     @classmethod
     def from_policy_file(cls, path: Path, action_low: np.ndarray, action_high: np.ndarray) -> PolicyController:
         """Load a ``policy.pt`` written by training (``srmpc.agents.checkpoint.save_policy``)."""
-        from srmpc.agents.checkpoint import CheckpointError, load_actor_mean_layers, read_policy_file
+        from srmpc.agents.checkpoint import CheckpointError, actor_mean_layers, read_policy_file
 
         saved = read_policy_file(path)
         if saved.get("action_head") == "clipped_gaussian_mean":
@@ -35,7 +35,7 @@ class PolicyController:
                 return cls(MlpPolicy(weights, biases, action_low, action_high, squash=False))
             except (KeyError, AttributeError, ValueError) as error:
                 raise CheckpointError(f"{path}: not a policy file written by stage=train_sb3 ({error})") from error
-        weights, biases = load_actor_mean_layers(path)
+        weights, biases = actor_mean_layers(saved, path)  # the file is read once
         return cls(MlpPolicy(weights, biases, action_low, action_high, squash=True))
 
     def reset(self) -> None:
