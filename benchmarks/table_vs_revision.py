@@ -32,6 +32,15 @@ import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "pipelines"))
+
+from paper_table import (  # noqa: E402  (the table's rows, where their episodes live, its bootstrap)
+    BOOTSTRAP_SEED,
+    CONFIRMATION,
+    EVALUATION,
+    METHODS,
+    RESAMPLES,
+)
 
 from srmpc.confidence_intervals import (  # noqa: E402
     PAIRED_METRICS,
@@ -39,18 +48,13 @@ from srmpc.confidence_intervals import (  # noqa: E402
     table_metrics_with_intervals,
 )
 
-METHODS = ("ppo_lsi", "ltv_mpc", "srmpc", "ppo", "ppo_sb3", "lane_keeping", "srmpc_recommended")
-"""The rows of ``results/table.json``."""
 TRAFFIC = ("light", "dense")
-RESAMPLES, SEED = 2000, 0
-"""The bootstrap of ``pipelines/paper_table.py``."""
 OUTPUT = ROOT / "results" / "benchmarks" / "table_vs_revision.json"
 
 
 def episodes_path(method: str, traffic: str) -> str:
-    if method == "srmpc_recommended":
-        return f"results/evaluation/confirmation/{method}_{traffic}/episodes.csv"
-    return f"results/evaluation/twin/{method}_{traffic}/episodes.csv"
+    directory = CONFIRMATION if method == "srmpc_recommended" else EVALUATION
+    return (directory / f"{method}_{traffic}" / "episodes.csv").as_posix()
 
 
 def at_revision(revision: str, path: str) -> pd.DataFrame:
@@ -72,9 +76,9 @@ def _inside(value: float, low: float, high: float) -> bool:
 
 def compare_cells(before: pd.DataFrame, after: pd.DataFrame) -> dict:
     """The four paired metrics of one table row: before, after, paired difference, agreement."""
-    row_before = table_metrics_with_intervals(before, RESAMPLES, SEED)
-    row_after = table_metrics_with_intervals(after, RESAMPLES, SEED)
-    paired = paired_differences(after, before, RESAMPLES, SEED)
+    row_before = table_metrics_with_intervals(before, RESAMPLES, BOOTSTRAP_SEED)
+    row_after = table_metrics_with_intervals(after, RESAMPLES, BOOTSTRAP_SEED)
+    paired = paired_differences(after, before, RESAMPLES, BOOTSTRAP_SEED)
     columns = list(PAIRED_METRICS)
     merged = after.merge(before, on="seed", suffixes=("_a", "_b"))
     identical = int((merged[[f"{c}_a" for c in columns]].to_numpy()

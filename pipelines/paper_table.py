@@ -27,6 +27,8 @@ METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "ppo":
            "srmpc_recommended": "SRMPC, recommended (ours: srmpc=track_rollout planner=margin_1m)"}
 CONFIRMATION = Path("results/evaluation/confirmation")
 PAIRED_AGAINST = ("ltv_mpc", "ppo_lsi")
+RESAMPLES, BOOTSTRAP_SEED = 2000, 0
+"""The bootstrap's resamples and seed (``--resamples``, ``--seed``)."""
 PAPER = {  # Table "Evaluation results" of the paper: J_r, J_r per step, J_c, rho_c, n_steps, v_x
     ("light", "ppo_lsi"): (-4669, -13.4, 0.308, 0.0009, 348, 23.11),
     ("light", "ltv_mpc"): (-1241, -5.1, 0.625, 0.0026, 244, 24.38),
@@ -182,8 +184,8 @@ def crosscheck_lines(path: Path) -> list[str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples")
-    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    parser.add_argument("--resamples", type=int, default=RESAMPLES, help="bootstrap resamples")
+    parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
     args = parser.parse_args()
     table, lines = {}, []
     for traffic in ("light", "dense"):
