@@ -114,17 +114,20 @@ def stage_upstreams(repository: Path) -> dict[str, set[str]]:
         return {stage.name: {upstream.name for upstream in graph.successors(stage)} for stage in graph.nodes}
 
 
-def evaluation_stage_names(dvc_yaml: Path) -> set[str]:
-    """Stages (as dvc.yaml names them, before any ``@item``) whose command is an evaluation:
-    ``python -m srmpc`` without ``stage=train``."""
-    stages = yaml.safe_load(dvc_yaml.read_text())["stages"]
-    names = set()
-    for name, stage in stages.items():
+def stage_commands(dvc_yaml: Path) -> dict[str, str]:
+    """Each stage's command as ``dvc.yaml`` writes it (its name before any ``@item``; a ``foreach``'s
+    ``do.cmd``; a list of commands joined by spaces)."""
+    commands = {}
+    for name, stage in yaml.safe_load(dvc_yaml.read_text())["stages"].items():
         command = stage.get("cmd") or stage.get("do", {}).get("cmd", "")
-        command = " ".join(command) if isinstance(command, list) else command
-        if command.startswith("python -m srmpc") and "stage=train" not in command:
-            names.add(name)
-    return names
+        commands[name] = " ".join(command) if isinstance(command, list) else command
+    return commands
+
+
+def evaluation_stage_names(dvc_yaml: Path) -> set[str]:
+    """Stages whose command is an evaluation: ``python -m srmpc`` without ``stage=train``."""
+    return {name for name, command in stage_commands(dvc_yaml).items()
+            if command.startswith("python -m srmpc") and "stage=train" not in command}
 
 
 EVALUATION_START_S = 8.5
@@ -195,18 +198,17 @@ def projections(stages: list[dict], runs: list[dict], evaluations: set[str], ups
 
 def training_stage_names(dvc_yaml: Path) -> set[str]:
     """Stages whose command trains: ``python -m srmpc stage=train`` or ``pipelines/train_runs.py``."""
-    stages = yaml.safe_load(dvc_yaml.read_text())["stages"]
-    return {name for name, stage in stages.items()
-            if "cmd" in stage and ("train_runs.py" in stage["cmd"] or "stage=train" in stage["cmd"])}
+    return {name for name, command in stage_commands(dvc_yaml).items()
+            if "train_runs.py" in command or "stage=train" in command}
 
 
 class LoadSampler(threading.Thread):
     """The 1-minute load average every ``LOAD_SAMPLE_S`` seconds while the pipeline runs; calls
     ``heartbeat()`` after each sample (the run's state file is refreshed there)."""
 
-    def __init__(self, heartbeat=None) -> None:
+    def __init__(self, samples: list[float], heartbeat=None) -> None:
         super().__init__(daemon=True)
-        self.samples: list[float] = []
+        self.samples = samples  # appended to in place: the running part's ``load_samples``
         self.stopped = threading.Event()
         self.heartbeat = heartbeat
 
@@ -395,8 +397,7 @@ def main() -> None:
     load_before = os.getloadavg()
     samples: list[float] = []
     part = state.new_part(samples)
-    sampler = LoadSampler(heartbeat=lambda: refresh_part(part, state))
-    sampler.samples = samples
+    sampler = LoadSampler(samples, heartbeat=lambda: refresh_part(part, state))
     sampler.start()
     _, _, returncode = timed_repro(clone, clone / ".venv" / "bin", workdir / "dvc_repro.log", part, state,
                                    force=not args.resume)
