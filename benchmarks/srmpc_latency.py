@@ -29,9 +29,9 @@ import numpy as np
 import torch
 
 from srmpc.config.compose import compose_config, to_objects
+from srmpc.controller_factory import build_controller
 from srmpc.controllers.srmpc import SrmpcController
 from srmpc.sim.single_env import TwinScenarioEnv
-from srmpc.stages.evaluate import build_controller
 
 OUTPUT = Path("results/benchmarks/srmpc_latency.json")
 CONTROLLERS = {  # name -> overrides

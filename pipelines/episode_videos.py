@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from srmpc.config.compose import compose_config, to_objects  # noqa: E402
-from srmpc.stages.evaluate import build_controller, make_env  # noqa: E402
+from srmpc.controller_factory import build_controller, make_env  # noqa: E402
 from srmpc.video import (  # noqa: E402
     FPS_PER_CONTROL_STEP,
     PLAN_COLOR,

@@ -25,9 +25,9 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from srmpc.config.compose import compose_config, to_objects  # noqa: E402
+from srmpc.controller_factory import build_controller, make_env  # noqa: E402
 from srmpc.mpc.planner import ReferenceSource  # noqa: E402
 from srmpc.scenario import road  # noqa: E402
-from srmpc.stages.evaluate import build_controller, make_env  # noqa: E402
 
 OUTPUT = Path("results/figures/srmpc_trajectory.png")
 

@@ -10,7 +10,8 @@ Floors, from the ground up, in the order data flows through them (README, "Layou
    ``sb3_ppo``: Stable-Baselines3's PPO on the twin, the peer of ``agents``' PPO (it uses agents' parts)
 5. ``episode_loop``, ``video``, ``result_table``, ``tracking``: episodes of a controller, their records
 6. ``config``: the typed schema and its composition, on top of what it composes
-7. ``sweep``: Hydra multirun jobs (their directories, their MLflow parent)
+7. ``sweep``: Hydra multirun jobs (their directories, their MLflow parent), and beside it
+   ``controller_factory``: the env and the controller a composed config names (stages, figures, benchmarks)
 8. ``stages``: what an entry point runs (evaluate, train)
 9. ``__main__``: the entry point
 
@@ -32,7 +33,7 @@ FLOOR = {
     "controllers": 4, "sb3_ppo": 4,
     "episode_loop": 5, "video": 5, "result_table": 5, "tracking": 5,
     "config": 6,
-    "sweep": 7,
+    "sweep": 7, "controller_factory": 7,
     "stages": 8,
     "__main__": 9,
 }

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from srmpc.config.compose import ConfigError, compose_config, to_objects
+from srmpc.controller_factory import build_controller
 from srmpc.controllers.ltv_mpc import LtvMpcController
 from srmpc.controllers.srmpc import OtherVehiclePrediction, ReferenceSelection, SrmpcController, SrmpcSettings
 from srmpc.episode_loop import run_episode
@@ -21,7 +22,6 @@ from srmpc.mpc.planner import LtvMpcPlanner, ReferenceSource, StepOutcome
 from srmpc.scenario import road
 from srmpc.scenario.observation import OBSERVATION_SCALE
 from srmpc.sim.single_env import TwinScenarioEnv
-from srmpc.stages.evaluate import build_controller
 from tests.mpc.test_planner_closed_loop import FailingAfter
 from tests.twin_scenes import hand_built_twin, observe
 

@@ -20,145 +20,22 @@ import os
 from dataclasses import fields
 from pathlib import Path
 
-import gymnasium
-import numpy as np
 import yaml
 
-from srmpc import SCENARIO_ID
 from srmpc.config.compose import ConfigError
-from srmpc.config.schema import Config, ControllerName, SimulatorName
-from srmpc.controllers import Controller
-from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGains
-from srmpc.controllers.ltv_mpc import LtvMpcController
+from srmpc.config.schema import Config
+from srmpc.controller_factory import make_env_and_controller, policy_file
 from srmpc.controllers.outcomes import OUTCOME_KEYS
-from srmpc.controllers.policy import PolicyController
-from srmpc.controllers.scenario_ocp import ocp_config
-from srmpc.controllers.srmpc import SceneSource, SrmpcController
 from srmpc.episode_loop import EpisodeRecord, evaluate, evaluate_in_workers
 from srmpc.metrics import EpisodeMetrics, aggregate_metrics
-from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights, lane_keeping_tracking_reference
-from srmpc.mpc.planner import LtvMpcPlanner
-from srmpc.scenario import road
-from srmpc.sim.constants import SimConstants
-from srmpc.sim.mlp import MlpPolicy
-from srmpc.sim.simulator import TwinSimulator
-from srmpc.sim.single_env import HighwayEnvStartTwinEnv, TwinScenarioEnv
-from srmpc.sim.state import SceneState
 from srmpc.tracking import Run
 
-REPOSITORY = Path(__file__).resolve().parents[2]
-"""The repository root: default policy files are its results/training/<agent>/policy.pt, from any directory."""
 OUTCOME_COLUMNS = [f"steps_{key}" for key in OUTCOME_KEYS]
 """Per-episode planner outcome counts (0 for controllers without outcomes): which link of the fallback
 chain produced the applied input (solved, shifted_previous, emergency_brake), which linearization
 reference a solved plan came from (solved_from_policy / _shifted / _lane_following) and the steps whose
 policy rollout failed (SRMPC only)."""
 EPISODE_COLUMNS = ["episode", "seed", *[f.name for f in fields(EpisodeMetrics)], "termination", *OUTCOME_COLUMNS]
-
-
-def build_planner_objects(config: Config) -> tuple[OcpConfig, float]:
-    """The OCP of ``planner`` for the scenario, and y_ref [m] (shared by LTV-MPC and SRMPC)."""
-    scenario, planner = config.scenario, config.planner
-    weights = TrackingWeights(
-        state=tuple(planner.state_weights), input=tuple(planner.input_weights),
-        input_rate=tuple(planner.input_rate_weights),
-        collision_slack_linear=planner.collision_slack_linear,
-        collision_slack_quadratic=planner.collision_slack_quadratic,
-        safety_slack_linear=planner.safety_slack_linear,
-        safety_slack_quadratic=planner.safety_slack_quadratic,
-    )
-    geometry = CollisionGeometry(
-        n_ego_circles=planner.n_ego_circles,
-        safety_margin_longitudinal_m=planner.safety_margin_longitudinal_m,
-        safety_margin_lateral_m=planner.safety_margin_lateral_m,
-    )
-    ocp = ocp_config(scenario, planner.horizon_steps, planner.max_vehicles, weights, geometry)
-    return ocp, float(road.LANE_CENTERS[road.RIGHT_LANE])
-
-
-def policy_file(config: Config) -> tuple[Path, str, str] | None:
-    """(file, agent, config key) of the policy the evaluated controller runs; None when it runs none."""
-    name = config.evaluation.controller
-    if name is ControllerName.srmpc:
-        agent, path, key = config.srmpc.policy.value, config.srmpc.policy_path, "srmpc.policy_path"
-    elif name in (ControllerName.ppo_lsi, ControllerName.ppo):
-        agent, path, key = name.value, config.evaluation.policy_path, "evaluation.policy_path"
-    else:
-        return None
-    return (Path(path) if path else REPOSITORY / "results" / "training" / agent / "policy.pt"), agent, key
-
-
-def load_policy(config: Config, agent: str, path: str | None, key: str) -> MlpPolicy:
-    """The deterministic actor of ``agent`` (TanhNormal mode) from ``path`` or its training output."""
-    scenario = config.scenario
-    policy_file = Path(path) if path else REPOSITORY / "results" / "training" / agent / "policy.pt"
-    if not policy_file.is_file():
-        raise ConfigError(f"{key}={str(policy_file)!r}: no such policy file (train first: stage=train agent={agent})")
-    low = np.array([-scenario.steering_max_rad, scenario.acceleration_min_mps2])
-    high = np.array([scenario.steering_max_rad, scenario.acceleration_max_mps2])
-    return PolicyController.from_policy_file(policy_file, low, high).policy
-
-
-def scene_source(env: gymnasium.Env) -> SceneSource:
-    """SRMPC's copy of the live scene: the twin's own state, or a twin copy of the highway-env scene."""
-    scenario_env = env.unwrapped
-    if isinstance(scenario_env, TwinScenarioEnv):
-        simulator = scenario_env.simulator
-        return lambda: (simulator.state, simulator.constants)
-
-    def copy_of_highway_env() -> tuple[SceneState, SimConstants]:
-        twin = TwinSimulator.from_highway_env([scenario_env], threads=1)
-        return twin.state, twin.constants
-
-    return copy_of_highway_env
-
-
-def build_controller(config: Config, env: gymnasium.Env) -> Controller:
-    """The controller named by ``evaluation.controller`` for ``env``, built from the config's plain values."""
-    scenario = config.scenario
-    name = config.evaluation.controller
-    if name is ControllerName.lane_keeping:
-        return LaneKeepingController(
-            scenario.steering_max_rad, scenario.acceleration_min_mps2, scenario.acceleration_max_mps2,
-            LaneKeepingGains(target_speed_mps=scenario.reward.vx_ref_mps),
-        )
-    if name is ControllerName.ltv_mpc:
-        ocp, y_ref = build_planner_objects(config)
-        tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
-                                                   control_period_s=ocp.control_period_s)
-        return LtvMpcController(LtvMpcPlanner(ocp, config.planner.solver), tracking)
-    if name is ControllerName.srmpc:
-        ocp, y_ref = build_planner_objects(config)
-        srmpc = config.srmpc
-        policy = load_policy(config, srmpc.policy.value, srmpc.policy_path, "srmpc.policy_path")
-        tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
-                                                   control_period_s=ocp.control_period_s)
-        return SrmpcController(policy, LtvMpcPlanner(ocp, config.planner.solver), scene_source(env), tracking,
-                               srmpc)  # SrmpcConfig is the SrmpcSettings schema plus the policy's name and file
-    if name in (ControllerName.ppo_lsi, ControllerName.ppo):
-        return PolicyController(load_policy(config, name.value, config.evaluation.policy_path,
-                                            "evaluation.policy_path"))
-    raise ConfigError(f"evaluation.controller={name.value}: not implemented")
-
-
-def make_env(config: Config) -> gymnasium.Env:
-    """The scenario on ``evaluation.simulator``."""
-    if config.evaluation.simulator is SimulatorName.twin:
-        return TwinScenarioEnv(config.scenario)
-    if config.evaluation.simulator is SimulatorName.twin_highway_env_resets:
-        return HighwayEnvStartTwinEnv(config.scenario)
-    return gymnasium.make(SCENARIO_ID, params=config.scenario)
-
-
-def make_env_and_controller(config: Config) -> tuple[gymnasium.Env, Controller]:
-    """The scenario on ``evaluation.simulator`` and ``evaluation.controller`` for it: what an evaluation,
-    and each of its worker processes, builds once."""
-    env = make_env(config)
-    try:
-        return env, build_controller(config, env)
-    except Exception:
-        env.close()
-        raise
 
 
 def available_cores() -> int:
