@@ -11,7 +11,8 @@ import pytest
 
 from srmpc.config.compose import ConfigError, compose_config, to_objects
 from srmpc.episode_loop import evaluate, evaluate_in_workers
-from srmpc.stages.evaluate import evaluation_workers, read_finished_episodes, run_evaluation
+from srmpc.output_folder import read_finished_episodes
+from srmpc.stages.evaluate import evaluation_workers, run_evaluation
 from srmpc.tracking import Run
 
 ROOT = Path(__file__).resolve().parents[1]

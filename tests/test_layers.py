@@ -9,7 +9,8 @@ Floors, from the ground up, in the order data flows through them (README, "Layou
 4. ``controllers``: policies and planners as closed-loop controllers (SRMPC among them), and beside them
    ``sb3_ppo``: Stable-Baselines3's PPO on the twin, the peer of ``agents``' PPO (it uses agents' parts)
 5. ``episode_loop``, ``video``, ``result_table``, ``tracking``: episodes of a controller, their records
-6. ``config``: the typed schema and its composition, on top of what it composes
+6. ``config``: the typed schema and its composition, on top of what it composes, and beside it
+   ``output_folder``: a run's files (the episodes CSV schema, the atomic write)
 7. ``sweep``: Hydra multirun jobs (their directories, their MLflow parent), and beside it
    ``controller_factory``: the env and the controller a composed config names (stages, figures, benchmarks)
 8. ``stages``: what an entry point runs (evaluate, train)
@@ -32,7 +33,7 @@ FLOOR = {
     "agents": 3, "mpc": 3,
     "controllers": 4, "sb3_ppo": 4,
     "episode_loop": 5, "video": 5, "result_table": 5, "tracking": 5,
-    "config": 6,
+    "config": 6, "output_folder": 6,
     "sweep": 7, "controller_factory": 7,
     "stages": 8,
     "__main__": 9,

@@ -17,7 +17,6 @@ import functools
 import hashlib
 import json
 import os
-from dataclasses import fields
 from pathlib import Path
 
 import yaml
@@ -27,15 +26,17 @@ from srmpc.config.schema import Config
 from srmpc.controller_factory import make_env_and_controller, policy_file
 from srmpc.controllers.outcomes import OUTCOME_KEYS
 from srmpc.episode_loop import EpisodeRecord, evaluate, evaluate_in_workers
-from srmpc.metrics import EpisodeMetrics, aggregate_metrics
+from srmpc.metrics import aggregate_metrics
+from srmpc.output_folder import (
+    CONFIG_NAME,
+    EPISODES_NAME,
+    SUMMARY_NAME,
+    atomic_write_text,
+    episode_row,
+    read_finished_episodes,
+    write_episodes,
+)
 from srmpc.tracking import Run
-
-OUTCOME_COLUMNS = [f"steps_{key}" for key in OUTCOME_KEYS]
-"""Per-episode planner outcome counts (0 for controllers without outcomes): which link of the fallback
-chain produced the applied input (solved, shifted_previous, emergency_brake), which linearization
-reference a solved plan came from (solved_from_policy / _shifted / _lane_following) and the steps whose
-policy rollout failed (SRMPC only)."""
-EPISODE_COLUMNS = ["episode", "seed", *[f.name for f in fields(EpisodeMetrics)], "termination", *OUTCOME_COLUMNS]
 
 
 def available_cores() -> int:
@@ -50,35 +51,6 @@ def evaluation_workers(config: Config, remaining: int) -> int:
     if requested < 0:
         raise ConfigError(f"evaluation.workers={requested}: must be >= 0 (0: one per CPU core, 1: this process)")
     return max(1, min(requested or available_cores(), remaining))
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file and rename, so readers never see half a file."""
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(text)
-    os.replace(temporary, path)
-
-
-def read_finished_episodes(path: Path) -> list[EpisodeRecord]:
-    """Rows of ``episodes.csv``; a torn last line (a crash mid-write) is dropped."""
-    if not path.exists():
-        return []
-    records = []
-    with path.open(newline="") as handle:
-        for row in csv.DictReader(handle):
-            try:
-                metrics = EpisodeMetrics(
-                    episode_return=float(row["episode_return"]), event_cost=float(row["event_cost"]),
-                    n_steps=int(row["n_steps"]), mean_vx=float(row["mean_vx"]),
-                    si_cost_return=float(row["si_cost_return"]),
-                )
-                outcomes = {c.removeprefix("steps_"): int(row[c]) for c in OUTCOME_COLUMNS if int(row[c])}
-                records.append(
-                    EpisodeRecord(int(row["episode"]), int(row["seed"]), metrics, row["termination"], outcomes)
-                )
-            except (TypeError, ValueError, KeyError):
-                break
-    return records
 
 
 NOT_IDENTITY = (("agent",), ("tracking",), ("evaluation", "output_dir"), ("evaluation", "workers"))
@@ -123,28 +95,17 @@ def prepare_output_dir(output_dir: Path, config_yaml: str) -> list[EpisodeRecord
     except OSError as error:
         raise ConfigError(f"evaluation.output_dir={output_dir}: cannot write there ({error.strerror or error})"
                           ) from error
-    config_path = output_dir / "config.yaml"
+    config_path = output_dir / CONFIG_NAME
     if config_path.exists() and evaluation_identity(config_path.read_text()) != evaluation_identity(config_yaml):
         raise ConfigError(
             f"evaluation.output_dir={output_dir}: holds results of a different config or policy ({config_path}); "
             "choose another directory"
         )
     atomic_write_text(config_path, config_yaml)
-    finished = read_finished_episodes(output_dir / "episodes.csv")
+    finished = read_finished_episodes(output_dir / EPISODES_NAME)
     finished = [r for i, r in enumerate(finished) if r.episode == i]  # keep the contiguous prefix
-    with (output_dir / "episodes.csv").open("w", newline="") as handle:  # rewrite without a torn tail
-        writer = csv.writer(handle)
-        writer.writerow(EPISODE_COLUMNS)
-        for record in finished:
-            writer.writerow(_row(record))
+    write_episodes(output_dir / EPISODES_NAME, finished)  # rewrite without a torn tail
     return finished
-
-
-def _row(record: EpisodeRecord) -> list:
-    m = record.metrics
-    outcomes = [record.outcomes.get(c.removeprefix("steps_"), 0) for c in OUTCOME_COLUMNS]
-    return [record.episode, record.seed, m.episode_return, m.event_cost, m.n_steps, m.mean_vx,
-            m.si_cost_return, record.termination, *outcomes]
 
 
 def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run, progress: bool = True) -> dict:
@@ -161,7 +122,7 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
     run.set_tags({"evaluation_workers": str(workers)})
     if finished:
         run.set_tags({"resumed_from_episode": str(len(finished))})
-    csv_handle = (output_dir / "episodes.csv").open("a", newline="")
+    csv_handle = (output_dir / EPISODES_NAME).open("a", newline="")
     writer = csv.writer(csv_handle)
     bar = None
     if progress:
@@ -171,7 +132,7 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
         bar = tqdm(total=episodes, initial=len(finished), desc=label, unit="ep")
 
     def on_episode(record: EpisodeRecord) -> None:
-        writer.writerow(_row(record))
+        writer.writerow(episode_row(record))
         csv_handle.flush()
         os.fsync(csv_handle.fileno())
         run.log_metrics({f"episode/{k}": v for k, v in record.metrics.as_dict().items()}, step=record.episode)
@@ -193,15 +154,12 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
     summary = aggregate_metrics([r.metrics for r in records]).as_dict()
     reasons = [r.termination for r in records]
     summary["terminations"] = {reason: reasons.count(reason) for reason in ("collision", "offroad", "truncated")}
-    summary["outcomes"] = {
-        c.removeprefix("steps_"): sum(r.outcomes.get(c.removeprefix("steps_"), 0) for r in records)
-        for c in OUTCOME_COLUMNS
-    }
+    summary["outcomes"] = {key: sum(r.outcomes.get(key, 0) for r in records) for key in OUTCOME_KEYS}
     summary["controller"] = config.evaluation.controller.value
     summary["traffic"] = config.scenario.traffic
     summary["simulator"] = config.evaluation.simulator.value
-    atomic_write_text(output_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+    atomic_write_text(output_dir / SUMMARY_NAME, json.dumps(summary, indent=2) + "\n")
     run.log_metrics({k: v for k, v in summary.items() if isinstance(v, float | int)})
-    run.log_artifact(output_dir / "episodes.csv")
-    run.log_artifact(output_dir / "summary.json")
+    run.log_artifact(output_dir / EPISODES_NAME)
+    run.log_artifact(output_dir / SUMMARY_NAME)
     return summary

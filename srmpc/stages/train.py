@@ -26,13 +26,11 @@ from srmpc.agents.hyperparameters import TrainTask
 from srmpc.agents.report import read_metrics, summarize_training
 from srmpc.config.compose import ConfigError
 from srmpc.config.schema import Config
-from srmpc.stages.evaluate import atomic_write_text
+from srmpc.output_folder import CONFIG_NAME, SUMMARY_NAME, atomic_write_text
 from srmpc.tracking import Run
 
 RESUMABLE_OVERRIDES = ("total_frames", "checkpoint_every", "output_dir", "num_threads", "sim_threads")
 """Agent fields that may change between an interrupted run and its resume."""
-SUMMARY_NAME = "summary.json"
-CONFIG_NAME = "config.yaml"
 RESULT_NAMES = (CHECKPOINT_NAME, POLICY_NAME, "metrics.csv", SUMMARY_NAME)  # metrics.csv: trainer.METRICS_CSV
 """Files of a training run besides its config.yaml."""
 

@@ -15,8 +15,8 @@ from srmpc.agents.hyperparameters import TrainTask
 from srmpc.agents.report import read_metrics, summarize_training
 from srmpc.config.compose import ConfigError
 from srmpc.config.schema import Config
-from srmpc.stages.evaluate import atomic_write_text
-from srmpc.stages.train import CONFIG_NAME, SUMMARY_NAME, _identity_yaml, claim_training_dir, training_dir
+from srmpc.output_folder import CONFIG_NAME, SUMMARY_NAME, atomic_write_text
+from srmpc.stages.train import _identity_yaml, claim_training_dir, training_dir
 from srmpc.tracking import Run
 
 
