@@ -15,6 +15,8 @@ from hydra.core.config_store import ConfigStore
 
 from srmpc.agents.hyperparameters import PPOHyperparameters
 from srmpc.controllers.srmpc import MAX_RELINEARIZATIONS, SrmpcSettings
+from srmpc.mpc.ocp import OcpConfig
+from srmpc.mpc.solvers import DEFAULT_SOLVER
 from srmpc.scenario.observation import SLOT_COUNT
 from srmpc.scenario.parameters import ScenarioParameters
 from srmpc.value_checks import NON_NEGATIVE, TEXT, Interval, Vector, at_least, check_fields
@@ -59,39 +61,45 @@ AgentConfig = PPOHyperparameters
 """PPO / PPO-L-SI hyperparameters (srmpc.agents.hyperparameters, every field documented there)."""
 
 
+_OCP = OcpConfig()
+"""The OCP's own defaults (srmpc/mpc/ocp.py): the one place the planner's default numbers are written."""
+
+
 @dataclass
 class PlannerConfig:
     """LTV-MPC settings (paper section "MPC for Automated Driving"); see srmpc/mpc/ocp.py for the math.
 
     Input bounds come from the scenario's action ranges; road and speed bounds from its geometry.
+    Every default is the OCP's own (``OcpConfig``, ``TrackingWeights``, ``CollisionGeometry``), so
+    ``conf/planner/ltv_mpc.yaml`` repeats none of them.
     """
 
-    horizon_steps: int = 25
+    horizon_steps: int = _OCP.horizon
     """Prediction horizon N (25 x 0.2 s = 5 s)."""
-    solver: str = "riccati_ipm"
+    solver: str = DEFAULT_SOLVER
     """QP solver: riccati_ipm (default, structure-exploiting interior point), piqp_native, osqp_native,
     or via qpsolvers osqp, clarabel, piqp, proxqp."""
-    max_vehicles: int = 6
+    max_vehicles: int = _OCP.max_vehicles
     """Other-vehicle slots in the QP (the scenario observes at most 6, so at least 6)."""
-    state_weights: list[float] = field(default_factory=lambda: [0.0, 0.5, 20.0, 0.5])
+    state_weights: list[float] = field(default_factory=lambda: list(_OCP.weights.state))
     """Q diagonal for (x [1/m^2], y [1/m^2], heading [1/rad^2], speed [s^2/m^2]); x is not tracked."""
-    input_weights: list[float] = field(default_factory=lambda: [50.0, 0.05])
+    input_weights: list[float] = field(default_factory=lambda: list(_OCP.weights.input))
     """R diagonal for (steering [1/rad^2], acceleration [s^4/m^2])."""
-    input_rate_weights: list[float] = field(default_factory=lambda: [500.0, 0.2])
+    input_rate_weights: list[float] = field(default_factory=lambda: list(_OCP.weights.input_rate))
     """S diagonal on input differences (the first against the last applied input)."""
-    collision_slack_linear: float = 1.0e4
+    collision_slack_linear: float = _OCP.weights.collision_slack_linear
     """Linear penalty on the per-vehicle collision slack (ellipse-norm units)."""
-    collision_slack_quadratic: float = 1.0e5
+    collision_slack_quadratic: float = _OCP.weights.collision_slack_quadratic
     """Quadratic penalty on the per-vehicle collision slack."""
-    safety_slack_linear: float = 50.0
+    safety_slack_linear: float = _OCP.weights.safety_slack_linear
     """Linear penalty on the per-stage safety-region slack (cheaper: entered only if necessary)."""
-    safety_slack_quadratic: float = 500.0
+    safety_slack_quadratic: float = _OCP.weights.safety_slack_quadratic
     """Quadratic penalty on the safety-region slack."""
-    n_ego_circles: int = 2
+    n_ego_circles: int = _OCP.geometry.n_ego_circles
     """Circles covering the ego (>= 2)."""
-    safety_margin_longitudinal_m: float = 8.0
+    safety_margin_longitudinal_m: float = _OCP.geometry.safety_margin_longitudinal_m
     """Safety-region semi-major axis minus the collision ellipse's [m]."""
-    safety_margin_lateral_m: float = 0.3
+    safety_margin_lateral_m: float = _OCP.geometry.safety_margin_lateral_m
     """Safety-region semi-minor axis minus the collision ellipse's [m]."""
 
     def __post_init__(self) -> None:
