@@ -11,7 +11,8 @@ Examples::
 Config errors (wrong type, unknown key, invalid choice, invalid value) exit with status 2 and one
 line naming the key and the value (an output directory that cannot be created included), and so does
 a run whose output directory another run is using (srmpc.output_lock: it names the holder's pid) or
-whose HTTP ``tracking.uri`` does not answer within 5 s (srmpc.tracking.check_tracking_server); any other
+whose ``tracking.uri`` cannot take a run: an HTTP server that does not answer within 5 s, a SQLite path
+that is not a database (srmpc.tracking.check_tracking_store); any other
 file that cannot be read or written (a corrupted policy.pt) exits with status 1 and one line naming
 the path. SIGTERM ends the run cleanly: the MLflow run is marked FAILED and finished episodes
 (evaluation) or the last completed iteration (training) stay on disk for a resume; after a SIGKILL the
@@ -32,7 +33,7 @@ from srmpc.config.compose import ConfigError, compose_config, to_objects
 from srmpc.config.schema import Config, Stage, register_schema
 from srmpc.errors import FileFault, describe_file_fault
 from srmpc.output_lock import OutputDirectoryBusy, OutputDirectoryUnwritable, exclusive_output_dir
-from srmpc.tracking import TrackingServerUnreachable, check_tracking_server, tracked_run
+from srmpc.tracking import TrackingStoreUnusable, check_tracking_store, tracked_run
 
 EXIT_CONFIG_ERROR = 2
 EXIT_RUN_ERROR = 1
@@ -89,7 +90,7 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
     # A sweep's jobs, or trainings side by side (pipelines/train_runs.py), start together: the first
     # creates the MLflow store (and, in a sweep, the experiment) under a lock; two creators would collide.
     if tracking.enabled:
-        check_tracking_server(tracking.uri)  # before the output directory is touched
+        check_tracking_store(tracking.uri)  # before the output directory is touched
     prepare_tracking_store(tracking, ensure_experiment=in_multirun())
     stage_dir, stage_dir_key = stage_output_dir(config, output_dir)
     with exclusive_output_dir(stage_dir, stage_dir_key), tracked_run(
@@ -122,7 +123,7 @@ def hydra_main(cfg: DictConfig) -> None:
         summary = run(cfg, Path(HydraConfig.get().runtime.output_dir))
     except (ConfigError, OutputDirectoryUnwritable) as error:
         _fail(str(error))
-    except (OutputDirectoryBusy, TrackingServerUnreachable) as error:  # refused before anything is written
+    except (OutputDirectoryBusy, TrackingStoreUnusable) as error:  # refused before anything is written
         _refuse(error)
     except (FileFault, OSError) as error:  # an unreadable policy.pt, an unwritable output directory
         print(f"srmpc: error: {describe_file_fault(error)}", file=sys.stderr)
@@ -148,8 +149,8 @@ def main() -> None:
             _fail(str(error))
         if tracking.enabled:  # before Hydra creates its run directory
             try:
-                check_tracking_server(tracking.uri)
-            except TrackingServerUnreachable as error:
+                check_tracking_store(tracking.uri)
+            except TrackingStoreUnusable as error:
                 _refuse(error)
     from srmpc.sweep import sweep_jobs
 

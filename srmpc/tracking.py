@@ -51,8 +51,55 @@ SERVER_CHECK_TIMEOUT_S = 5.0
 """How long :func:`check_tracking_server` waits for an HTTP tracking server's ``/health``."""
 
 
-class TrackingServerUnreachable(RuntimeError):
+SQLITE_HEADER = b"SQLite format 3\x00"
+"""The first 16 bytes of every SQLite database file (an empty file is a new, empty database too)."""
+
+
+class TrackingStoreUnusable(RuntimeError):
+    """``tracking.uri`` names a store no run can use; the message is one line naming the key and the store."""
+
+
+class TrackingServerUnreachable(TrackingStoreUnusable):
     """``tracking.uri`` names an HTTP server that does not answer; the message is one line naming it."""
+
+
+def sqlite_store_path(uri: str) -> Path | None:
+    """The file of a ``sqlite:///<path>`` URI (SQLAlchemy's form: three slashes and a relative path, four
+    and an absolute one; a ``?query`` dropped), or None for any other store or an in-memory database."""
+    if not uri.lower().startswith("sqlite:///"):
+        return None
+    path = uri[len("sqlite:///"):].split("?", 1)[0]
+    return None if path in ("", ":memory:") else Path(path)
+
+
+def check_tracking_store(uri: str, timeout_s: float = SERVER_CHECK_TIMEOUT_S) -> None:
+    """Refuse, before anything is written, a ``tracking.uri`` whose store cannot take a run: an HTTP
+    server that does not answer (:func:`check_tracking_server`), or a SQLite path that is a folder, a file
+    that is not an SQLite database, or a file in a folder that does not exist. MLflow itself would end
+    in a SQLAlchemy traceback after its migrations start; this raises :class:`TrackingStoreUnusable`
+    with one line. Other stores (a local folder, ``databricks``) are left to MLflow."""
+    path = sqlite_store_path(uri)
+    if path is None:
+        check_tracking_server(uri, timeout_s)
+        return
+    problem = None
+    if path.is_dir():
+        problem = f"{path} is a folder, not an SQLite database file"
+    elif path.exists():
+        try:
+            with path.open("rb") as file:
+                header = file.read(len(SQLITE_HEADER))
+        except OSError as error:
+            problem = f"{path} cannot be read ({error.strerror or error})"
+        else:
+            if header and header != SQLITE_HEADER:
+                problem = f"{path} is not an SQLite database (its first bytes are not SQLite's header)"
+    elif not path.parent.is_dir():
+        problem = f"the folder of {path} does not exist"
+    if problem is not None:
+        raise TrackingStoreUnusable(
+            f"tracking.uri={uri}: {problem}; name a new or an existing MLflow .db file, "
+            "or run without tracking: tracking.enabled=false")
 
 
 def check_tracking_server(uri: str, timeout_s: float = SERVER_CHECK_TIMEOUT_S) -> None:

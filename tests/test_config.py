@@ -91,7 +91,7 @@ def test_cli_bad_value_exits_non_zero_with_one_line(tmp_path, override, line):
         ("agent.actor_lr=-1", "agent.actor_lr=-1.0: must be a finite number > 0"),
         ("scenario.reward.scale=inf", "scenario.reward.scale=inf: must be a finite number > 0"),
         ("agent.gamma=0", "agent.gamma=0.0: must be a finite number in (0, 1]"),
-        ("agent.hidden_sizes=[]", "agent.hidden_sizes=[]: must be a non-empty list of integers, each >= 1"),
+        ("agent.hidden_sizes=[]", "agent.hidden_sizes=[]: must be a non-empty list of integers, each in [1, 4096]"),
         ("planner.state_weights=[1,1,1]", "planner.state_weights=[1.0, 1.0, 1.0]: must be a list of 4 finite"),
         ("tracking.experiment_name=''", "tracking.experiment_name='': must be a non-empty string"),
     ],
@@ -113,3 +113,34 @@ def test_every_committed_config_still_validates():
         stored.pop("policy_sha256", None)
         stored.pop("implementation", None)  # stage=train_sb3 records its library beside the config
         to_objects(OmegaConf.merge(OmegaConf.structured(Config), stored))
+
+
+@pytest.mark.parametrize(
+    ("override", "fragment"),
+    [
+        ("planner.horizon_steps=100000", "planner.horizon_steps=100000: must be an integer in [2, 400]"),
+        ("planner.max_vehicles=1000000", "planner.max_vehicles=1000000: must be an integer in [6, 40]"),
+        ("planner.n_ego_circles=1000000", "planner.n_ego_circles=1000000: must be an integer in [2, 16]"),
+        ("scenario.vehicles_count=1000000", "scenario.vehicles_count=1000000: must be an integer in [1, 6000]"),
+        ("scenario.episode_steps=1000000000", "scenario.episode_steps=1000000000: must be an integer in [1, 10000]"),
+        ("agent.hidden_sizes=[64,1000000000]", "agent.hidden_sizes=[64, 1000000000]: must be a non-empty list of "
+                                               "integers, each in [1, 4096]"),
+        ("agent.num_envs=1000000000", "agent.num_envs=1000000000: must be an integer in [1, 65536]"),
+        ("agent.frames_per_batch=10000000000", "agent.frames_per_batch=10000000000: must be an integer in "
+                                               "[1, 4194304]"),
+    ],
+)
+def test_sizes_are_bounded_by_what_the_planner_and_the_twin_hold(override, fragment):
+    """Each of these once hung for minutes or died in an allocator (MemoryError, torch's RuntimeError)."""
+    with pytest.raises(ConfigError, match=re.escape(fragment)):
+        compose_config([override])
+
+
+def test_cli_refuses_an_unbounded_horizon_in_seconds(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "srmpc", "+experiment=smoke", "planner.horizon_steps=100000"],
+        capture_output=True, text=True, cwd=tmp_path, timeout=120,
+    )
+    assert result.returncode == 2
+    assert [line for line in result.stderr.splitlines() if line.strip()] == [
+        "srmpc: config error: planner.horizon_steps=100000: must be an integer in [2, 400]"]

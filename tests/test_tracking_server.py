@@ -1,5 +1,6 @@
 """An HTTP ``tracking.uri``: a server that does not answer is one line (exit 2, nothing written, no retry
-WARNINGs); a real ``mlflow server`` takes the run's params, metrics and artifacts (slow: it starts in ~20 s)."""
+WARNINGs); a real ``mlflow server`` takes the run's params, metrics and artifacts (slow: it starts in ~20 s).
+A SQLite ``tracking.uri`` that is no database (a folder, another file, a missing folder) is one line too."""
 
 from __future__ import annotations
 
@@ -12,7 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from srmpc.tracking import PARENT_RUN_ENV, TrackingServerUnreachable, check_tracking_server
+from srmpc.tracking import (
+    PARENT_RUN_ENV,
+    TrackingServerUnreachable,
+    TrackingStoreUnusable,
+    check_tracking_server,
+    check_tracking_store,
+)
 from tests.mlflow_server import free_port, serve_mlflow
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,6 +69,44 @@ def test_a_server_that_answers_but_not_healthy_is_refused():
     with pytest.raises(TrackingServerUnreachable, match="http://127.0.0.1:99999999"):
         check_tracking_server("http://127.0.0.1:99999999")  # a malformed URI is one line too
 
+
+
+def _unusable_stores(tmp_path: Path) -> dict[str, tuple[str, str]]:
+    """name -> (tracking.uri, what the one-line error says about it)."""
+    not_a_database = tmp_path / "notes.db"
+    not_a_database.write_text("not a database\n")
+    folder = tmp_path / "a_folder"
+    folder.mkdir()
+    return {
+        "text file": (f"sqlite:///{not_a_database}", f"{not_a_database} is not an SQLite database"),
+        "folder": (f"sqlite:///{folder}", f"{folder} is a folder, not an SQLite database file"),
+        "missing folder": (f"sqlite:///{tmp_path / 'missing' / 'mlflow.db'}",
+                           f"the folder of {tmp_path / 'missing' / 'mlflow.db'} does not exist"),
+    }
+
+
+def test_sqlite_stores_that_are_no_database_are_refused(tmp_path):
+    for uri, says in _unusable_stores(tmp_path).values():
+        with pytest.raises(TrackingStoreUnusable) as error:
+            check_tracking_store(uri)
+        assert str(error.value).startswith(f"tracking.uri={uri}: {says}")
+        assert "\n" not in str(error.value)
+    empty = tmp_path / "empty.db"
+    empty.touch()  # SQLite opens an empty file as a new database
+    check_tracking_store(f"sqlite:///{empty}")
+    check_tracking_store(f"sqlite:///{tmp_path / 'new.db'}")
+    check_tracking_store("sqlite:///:memory:")
+    check_tracking_store(str(tmp_path / "file_store"))  # not SQLite: left to MLflow
+
+
+def test_a_text_file_as_the_store_is_one_line_and_writes_nothing(tmp_path):
+    uri, says = _unusable_stores(tmp_path)["text file"]
+    result = _smoke(tmp_path, uri)
+    assert result.returncode == 2, result.stderr[-3000:]
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith(f"srmpc: error: tracking.uri={uri}: {says}"), line
+    assert (tmp_path / "notes.db").read_text() == "not a database\n"
+    assert not (tmp_path / "eval").exists() and not (tmp_path / "hydra").exists()
 
 @pytest.mark.slow
 def test_a_real_server_takes_the_run(tmp_path):

@@ -23,6 +23,17 @@ from srmpc.value_checks import (
     check_fields,
 )
 
+MAX_HIDDEN_WIDTH = 4096
+"""Widest hidden layer: a 4096 x 4096 layer holds 16.8M weights (67 MB in float32, 4x that with Adam's
+moments and the gradient) for the actor, both critics and the multiplier each. The paper's policy is a
+small 2 x 64 MLP; a width of 10^9 asked torch for 120 GB and died in its allocator."""
+MAX_NUM_ENVS = 65_536
+"""Most parallel scenes B: the twin keeps about 5 kB per scene (41 vehicles), so 65,536 scenes are
+about 0.3 GB, 64x the default 1024."""
+MAX_FRAMES_PER_BATCH = 4_194_304
+"""Most environment steps per iteration (2^22, 128x the default): the rollout buffer keeps about 300
+bytes per step (observations, actions, log-probabilities, rewards, costs, values), about 1.3 GB."""
+
 
 def _check(condition: bool, key: str, value: object, expectation: str) -> None:
     if not condition:
@@ -131,13 +142,15 @@ class PPOHyperparameters:
 
     def __post_init__(self) -> None:
         check_fields(
-            self, name=TEXT, hidden_sizes=Vector(at_least(1), min_length=1), initial_std=POSITIVE, gamma=DISCOUNT,
+            self, name=TEXT, hidden_sizes=Vector(Interval(1, MAX_HIDDEN_WIDTH), min_length=1), initial_std=POSITIVE,
+            gamma=DISCOUNT,
             cost_gamma=UNIT_INTERVAL, gae_lambda=UNIT_INTERVAL,
             clip_epsilon=Interval(0.0, 1.0, low_open=True, high_open=True), entropy_coef=NON_NEGATIVE,
             actor_lr=POSITIVE, critic_lr=POSITIVE, multiplier_lr=POSITIVE, multiplier_lr_final=POSITIVE,
             multiplier_update_every=at_least(1), multiplier_steps=at_least(1), multiplier_max_grad_norm=POSITIVE,
             lambda_max=POSITIVE, initial_lambda=POSITIVE, cost_threshold=FINITE, violation_clip_low=NON_NEGATIVE,
-            violation_clip_high=POSITIVE, max_grad_norm=POSITIVE, num_envs=at_least(1), frames_per_batch=at_least(1),
+            violation_clip_high=POSITIVE, max_grad_norm=POSITIVE, num_envs=Interval(1, MAX_NUM_ENVS),
+            frames_per_batch=Interval(1, MAX_FRAMES_PER_BATCH),
             total_frames=at_least(1), minibatch_size=at_least(1), epochs=at_least(1), checkpoint_every=at_least(1),
             seed=NON_NEGATIVE, num_threads=at_least(1), sim_threads=at_least(1), output_dir=TEXT,
         )

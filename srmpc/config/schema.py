@@ -15,7 +15,7 @@ from hydra.core.config_store import ConfigStore
 
 from srmpc.agents.hyperparameters import PPOHyperparameters
 from srmpc.controllers.srmpc import MAX_RELINEARIZATIONS, SrmpcSettings
-from srmpc.mpc.ocp import OcpConfig
+from srmpc.mpc.ocp import MAX_EGO_CIRCLES, MAX_HORIZON_STEPS, MAX_VEHICLE_SLOTS, OcpConfig
 from srmpc.mpc.solvers import DEFAULT_SOLVER
 from srmpc.scenario.observation import SLOT_COUNT
 from srmpc.scenario.parameters import ScenarioParameters
@@ -75,12 +75,12 @@ class PlannerConfig:
     """
 
     horizon_steps: int = _OCP.horizon
-    """Prediction horizon N (25 x 0.2 s = 5 s)."""
+    """Prediction horizon N (25 x 0.2 s = 5 s); at most ``MAX_HORIZON_STEPS`` (srmpc/mpc/ocp.py says why)."""
     solver: str = DEFAULT_SOLVER
     """QP solver: riccati_ipm (default, structure-exploiting interior point), piqp_native, osqp_native,
     or via qpsolvers osqp, clarabel, piqp, proxqp."""
     max_vehicles: int = _OCP.max_vehicles
-    """Other-vehicle slots in the QP (the scenario observes at most 6, so at least 6)."""
+    """Other-vehicle slots in the QP (the scenario observes at most 6, so at least 6; at most ``MAX_VEHICLE_SLOTS``)."""
     state_weights: list[float] = field(default_factory=lambda: list(_OCP.weights.state))
     """Q diagonal for (x [1/m^2], y [1/m^2], heading [1/rad^2], speed [s^2/m^2]); x is not tracked."""
     input_weights: list[float] = field(default_factory=lambda: list(_OCP.weights.input))
@@ -96,7 +96,7 @@ class PlannerConfig:
     safety_slack_quadratic: float = _OCP.weights.safety_slack_quadratic
     """Quadratic penalty on the safety-region slack."""
     n_ego_circles: int = _OCP.geometry.n_ego_circles
-    """Circles covering the ego (>= 2)."""
+    """Circles covering the ego (2 to ``MAX_EGO_CIRCLES``)."""
     safety_margin_longitudinal_m: float = _OCP.geometry.safety_margin_longitudinal_m
     """Safety-region semi-major axis minus the collision ellipse's [m]."""
     safety_margin_lateral_m: float = _OCP.geometry.safety_margin_lateral_m
@@ -106,11 +106,12 @@ class PlannerConfig:
         from srmpc.mpc.solvers import available_solvers
 
         check_fields(
-            self, horizon_steps=at_least(2), solver=TEXT, max_vehicles=at_least(SLOT_COUNT),
+            self, horizon_steps=Interval(2, MAX_HORIZON_STEPS), solver=TEXT,
+            max_vehicles=Interval(SLOT_COUNT, MAX_VEHICLE_SLOTS),
             state_weights=Vector(NON_NEGATIVE, length=4), input_weights=Vector(NON_NEGATIVE, length=2),
             input_rate_weights=Vector(NON_NEGATIVE, length=2), collision_slack_linear=NON_NEGATIVE,
             collision_slack_quadratic=NON_NEGATIVE, safety_slack_linear=NON_NEGATIVE,
-            safety_slack_quadratic=NON_NEGATIVE, n_ego_circles=at_least(2),
+            safety_slack_quadratic=NON_NEGATIVE, n_ego_circles=Interval(2, MAX_EGO_CIRCLES),
             safety_margin_longitudinal_m=NON_NEGATIVE, safety_margin_lateral_m=NON_NEGATIVE,
         )
         if self.solver not in available_solvers():

@@ -46,6 +46,19 @@ REFERENCE_LATERAL_POSITION_M = LANE_CENTRES_M[-1]
 REFERENCE_SPEED_M_S = 25.0
 """Reference speed v_ref [m/s]."""
 
+MAX_HORIZON_STEPS = 400
+"""Largest horizon N the planner accepts: 400 steps are 80 s at 5 Hz, the default episode's whole length,
+16x the paper's 5 s. The QP's size and the Riccati solver's work and memory grow linearly in N (N = 400
+ran a 30-step episode with SRMPC in 9 s and 0.5 GB); far beyond it, the prediction outlasts any episode
+and a run spends minutes per step (N = 100,000 gave no step within 90 s)."""
+MAX_VEHICLE_SLOTS = 40
+"""Most other-vehicle slots V in the QP: the paper's scene has 40 vehicles besides the ego, and the
+controllers pass at most the 6 observed ones, so further slots stay empty. Each slot adds
+N x circles collision rows (V = 1,000,000 took 13 GB and no step within 110 s)."""
+MAX_EGO_CIRCLES = 16
+"""Most circles covering the ego: with 16 the circle radius sqrt((L/2n)^2 + (W/2)^2) is within 1.2% of
+the half-width W/2 it tends to, so more circles no longer tighten the cover, and each adds rows."""
+
 
 @dataclass(frozen=True)
 class TrackingWeights:
@@ -92,8 +105,8 @@ class CollisionGeometry:
     safety_margin_lateral_m: float = 0.3
 
     def __post_init__(self) -> None:
-        if self.n_ego_circles < 2:
-            raise ValueError("the ego must be covered by at least 2 circles")
+        if not 2 <= self.n_ego_circles <= MAX_EGO_CIRCLES:
+            raise ValueError(f"the ego must be covered by 2 to {MAX_EGO_CIRCLES} circles, not {self.n_ego_circles}")
 
     @property
     def circle_offsets_m(self) -> np.ndarray:

@@ -21,6 +21,15 @@ from srmpc.value_checks import (
     check_fields,
 )
 
+MAX_VEHICLES_COUNT = int(road.LANE_COUNT * road.ROAD_LENGTH / road.VEHICLE_LENGTH)
+"""Most IDM vehicles a scene holds: 6000, the 3 lanes of the 10 km road filled bumper to bumper by 5 m
+vehicles. The twin keeps a few dozen float64 per vehicle and sweeps them sorted by x, so 8000 vehicles
+still ran a 30-step SRMPC episode in 13 s and 0.5 GB; 1,000,000 ended in a ``MemoryError`` inside the
+step kernel."""
+MAX_EPISODE_STEPS = 10_000
+"""Longest episode in control steps: 2000 s at 5 Hz. Traffic at its slowest default spawn speed (21 m/s)
+leaves the 10 km road after 476 s (2381 steps), so no longer episode has a scene left to drive in."""
+
 
 def _check(condition: bool, key: str, value: object, expectation: str) -> None:
     if not condition:
@@ -105,7 +114,7 @@ class ScenarioParameters:
     traffic: str = "light"
     """Label of the traffic level, used in run names and result files."""
     vehicles_count: int = 40
-    """Number of IDM vehicles besides the ego."""
+    """Number of IDM vehicles besides the ego (at most ``MAX_VEHICLES_COUNT``, what the road holds)."""
     vehicles_behind_ego: int = 16
     """How many of them are spawned behind the ego."""
     mean_spawn_gap_m: float = 25.0
@@ -123,7 +132,7 @@ class ScenarioParameters:
     policy_frequency_hz: int = 5
     """Control frequency [Hz]; dt = 0.2 s, 3 integration sub-steps per step."""
     episode_steps: int = 400
-    """Truncation after this many control steps (400 x 0.2 s = 80 s)."""
+    """Truncation after this many control steps (400 x 0.2 s = 80 s; at most ``MAX_EPISODE_STEPS``)."""
     steering_max_rad: float = 0.1
     """Steering angle range [-max, max] [rad]. At 25 m/s, 0.1 rad already commands ~12 m/s^2 of
     lateral acceleration, beyond tyre limits, so the range limits no highway manoeuvre."""
@@ -142,10 +151,11 @@ class ScenarioParameters:
         if isinstance(self.safety_index, dict):
             self.safety_index = SafetyIndexParameters(**self.safety_index)
         check_fields(
-            self, traffic=TEXT, vehicles_count=at_least(1), vehicles_behind_ego=NON_NEGATIVE,
+            self, traffic=TEXT, vehicles_count=Interval(1, MAX_VEHICLES_COUNT), vehicles_behind_ego=NON_NEGATIVE,
             mean_spawn_gap_m=POSITIVE, other_speed_min_mps=NON_NEGATIVE, other_speed_max_mps=NON_NEGATIVE,
             ego_speed_min_mps=NON_NEGATIVE, ego_speed_max_mps=Interval(0.0, road.MAX_SPEED),
-            simulation_frequency_hz=at_least(1), policy_frequency_hz=at_least(1), episode_steps=at_least(1),
+            simulation_frequency_hz=at_least(1), policy_frequency_hz=at_least(1),
+            episode_steps=Interval(1, MAX_EPISODE_STEPS),
             steering_max_rad=Interval(0.0, math.pi / 2, low_open=True, high_open=True),
             acceleration_min_mps2=NON_POSITIVE, acceleration_max_mps2=NON_NEGATIVE, perception_range_m=POSITIVE,
         )
