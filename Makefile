@@ -18,16 +18,16 @@ install: $(STAMP)
 ## The main job: regenerate every result (DVC pipeline: spawn statistics, training, evaluation, table,
 ## figures, videos), then the smoke experiment; always ends by printing results/table.md.
 ## Committed results make `dvc repro` a no-op; `make reproduce FORCE=1` runs `dvc repro --force` (every stage).
-## Every stage's MLflow run is a child of one parent run (pipelines/pipeline_run.py), which gets the table,
+## Every stage's MLflow run is a child of one parent run (pipelines/mlflow_parent_run.py), which gets the table,
 ## figures and videos as artifacts; then every evaluation and training result in dvc.lock that MLflow lacks
 ## is imported as a child run (pipelines/mlflow_import.py), so a fresh clone's MLflow holds them all.
 FORCE ?=
 reproduce: install
-	@parent=$$(python pipelines/pipeline_run.py start --name "make reproduce$(if $(FORCE), FORCE=1)") \
+	@parent=$$(python -m pipelines.mlflow_parent_run start --name "make reproduce$(if $(FORCE), FORCE=1)") \
 	  && echo "MLflow parent run $$parent (make ui)" || parent=""; \
 	SRMPC_PARENT_RUN_ID=$$parent dvc repro $(if $(FORCE),--force); status=$$?; \
-	[ -z "$$parent" ] || python pipelines/pipeline_run.py import --parent $$parent || status=$$?; \
-	[ -z "$$parent" ] || python pipelines/pipeline_run.py finish $$parent --status $$status; \
+	[ -z "$$parent" ] || python -m pipelines.mlflow_parent_run import --parent $$parent || status=$$?; \
+	[ -z "$$parent" ] || python -m pipelines.mlflow_parent_run finish $$parent --status $$status; \
 	if [ $$status -eq 0 ]; then python -m srmpc +experiment=smoke || status=$$?; fi; \
 	echo; echo "== results/table.md =="; cat results/table.md; \
 	exit $$status
@@ -36,9 +36,9 @@ reproduce: install
 videos: install
 	dvc repro --single-item videos
 
-## The default test suite (slow tests excluded).
+## The default test suite (slow tests excluded), on every core (pytest-xdist; the longest files first).
 test: install
-	python -m pytest
+	python -m pytest -n auto --dist loadfile
 
 ## Long tests (marked slow).
 test-slow: install
@@ -51,7 +51,7 @@ lint: install
 ## GenAI view unless the UI is in "Model training" mode (switch at the top left): the printed URL opens
 ## the runs table (metric columns: Columns -> Metrics).
 ui: install
-	@echo "Runs table: $$(python pipelines/pipeline_run.py url 2>/dev/null)"
+	@echo "Runs table: $$(python -m pipelines.mlflow_parent_run url 2>/dev/null)"
 	mlflow ui --backend-store-uri sqlite:///mlflow.db --default-artifact-root ./mlruns --host 127.0.0.1 --port 5000
 
 clean:

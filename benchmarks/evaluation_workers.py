@@ -19,17 +19,15 @@ import argparse
 import json
 import os
 import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from srmpc.config.compose import compose_config, to_objects
+from srmpc.stages.evaluate import available_cores, run_evaluation
+from srmpc.tracking import Run
 
-from srmpc.config.compose import compose_config, to_objects  # noqa: E402
-from srmpc.stages.evaluate import available_cores, run_evaluation  # noqa: E402
-from srmpc.tracking import Run  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 DEFAULT_OVERRIDES = ["+experiment=light_traffic", "evaluation.controller=srmpc"]
 

@@ -57,10 +57,9 @@ from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from srmpc.stages.evaluate import available_cores
 
-from srmpc.stages.evaluate import available_cores  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 TARGETS_S = {"dvc_repro_wall_s": 7200.0, "downstream_of_training_s": 3600.0}
 """Issue 20's targets on this project's 2-core machine: the whole pipeline in 120 min, downstream in 60
@@ -197,9 +196,9 @@ def projections(stages: list[dict], runs: list[dict], evaluations: set[str], ups
 
 
 def training_stage_names(dvc_yaml: Path) -> set[str]:
-    """Stages whose command trains: ``python -m srmpc stage=train`` or ``pipelines/train_runs.py``."""
+    """Stages whose command trains: ``python -m srmpc stage=train`` or ``python -m pipelines.train_runs``."""
     return {name for name, command in stage_commands(dvc_yaml).items()
-            if "train_runs.py" in command or "stage=train" in command}
+            if "train_runs" in command or "stage=train" in command}
 
 
 class LoadSampler(threading.Thread):

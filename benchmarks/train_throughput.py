@@ -22,17 +22,15 @@ import json
 import os
 import platform
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from srmpc.config.compose import compose_config, to_objects
+from srmpc.sb3_ppo.training import IMPLEMENTATION
+from srmpc.stages.train import make_training_env
 
-from srmpc.config.compose import compose_config, to_objects  # noqa: E402
-from srmpc.sb3_ppo.training import IMPLEMENTATION  # noqa: E402
-from srmpc.stages.train import make_training_env  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def time_ours(config, warmup: int, iterations: int) -> tuple[float, float]:

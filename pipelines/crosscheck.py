@@ -1,6 +1,6 @@
 """DVC stage ``crosscheck``: the twin's own resets against highway-env's resets, per method and traffic.
 
-    python pipelines/crosscheck.py
+    python -m pipelines.crosscheck
 
 For each method (PPO-L-SI, LTV-MPC, SRMPC) and traffic level, compares
 - ``results/evaluation/twin/<method>_<traffic>``: 1000 episodes from the twin's own resets (the table's
@@ -20,18 +20,15 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import pandas as pd
 from scipy.stats import fisher_exact, norm
 
+from pipelines.reporting import write_outputs
+from srmpc.confidence_intervals import wilson_interval
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from paper_table import write_outputs  # noqa: E402
-
-from srmpc.confidence_intervals import wilson_interval  # noqa: E402
 
 METHODS = ("ppo_lsi", "ltv_mpc", "srmpc")
 SOURCES = {"twin": ROOT / "results/evaluation/twin",

@@ -1,6 +1,6 @@
 """Designate one trained seed's policy as the agent's policy for every evaluation.
 
-    python pipelines/designate_policy.py --agent ppo_lsi --seed 0 [--training-dir results/training]
+    python -m pipelines.designate_policy --agent ppo_lsi --seed 0 [--training-dir results/training]
 
 Copies ``<training-dir>/<agent>/seed_<seed>/policy.pt`` to ``<training-dir>/<agent>/policy.pt`` (the
 path the evaluations, SRMPC and the figures load) and writes ``designated.json`` next to it: the seed,

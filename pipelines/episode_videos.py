@@ -17,17 +17,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from srmpc.config.compose import compose_config, to_objects  # noqa: E402
-from srmpc.controller_factory import build_controller, make_env  # noqa: E402
-from srmpc.video import (  # noqa: E402
+from srmpc.config.compose import compose_config, to_objects
+from srmpc.controller_factory import build_controller, make_env
+from srmpc.video import (
     FPS_PER_CONTROL_STEP,
     PLAN_COLOR,
     REFERENCE_COLOR,
@@ -38,6 +34,8 @@ from srmpc.video import (  # noqa: E402
     stack_videos,
     write_video,
 )
+
+ROOT = Path(__file__).resolve().parents[1]
 
 OUTPUT = ROOT / "results" / "videos"
 METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC"}

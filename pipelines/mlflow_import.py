@@ -2,7 +2,7 @@
 
 A fresh clone has the committed results but an empty MLflow store (``mlflow.db`` is not committed), and
 ``dvc repro`` reruns nothing, so no stage logs a run. After ``dvc repro``, ``make reproduce`` calls
-``python pipelines/pipeline_run.py import PARENT_RUN_ID``, which reads ``dvc.lock`` and logs, as children
+``python -m pipelines.mlflow_parent_run import PARENT_RUN_ID``, which reads ``dvc.lock`` and logs, as children
 of the pipeline's parent run:
 
 - one run per evaluation output directory (a directory with ``summary.json`` and ``episodes.csv``): the

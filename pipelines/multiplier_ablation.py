@@ -1,6 +1,6 @@
 """Issue 9's ablation of the multiplier: the end of each reduced-budget run, and lambda(s) vs v_c(s).
 
-    python pipelines/multiplier_ablation.py [--ablation-dir results/training/ablation]
+    python -m pipelines.multiplier_ablation [--ablation-dir results/training/ablation]
 
 Reads every run directory under ``--ablation-dir`` (DVC stage ``train_multiplier_ablation``):
 ``summary.json`` (last 5% of training), ``config.yaml`` (the agent settings that differ are listed),
@@ -19,15 +19,13 @@ import argparse
 import csv
 import json
 import math
-import sys
 from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from srmpc.agents.hyperparameters import PPOHyperparameters
 
-from srmpc.agents.hyperparameters import PPOHyperparameters  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 REFERENCE = "ppo"
 """The PPO run of the same budget that the cost-rate ratios refer to."""

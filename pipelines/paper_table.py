@@ -13,67 +13,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
-import pandas as pd
-
-from srmpc.confidence_intervals import paired_differences, table_metrics_with_intervals
-
-EVALUATION = Path("results/evaluation/twin")
-METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "ppo": "PPO",
-           "ppo_sb3": "PPO (Stable-Baselines3)",
-           "lane_keeping": "Lane keeping (baseline)",
-           "srmpc_recommended": "SRMPC, recommended (ours: srmpc=track_rollout planner=margin_1m)"}
-CONFIRMATION = Path("results/evaluation/confirmation")
-PAIRED_AGAINST = ("ltv_mpc", "ppo_lsi")
-RESAMPLES, BOOTSTRAP_SEED = 2000, 0
-"""The bootstrap's resamples and seed (``--resamples``, ``--seed``)."""
-PAPER = {  # Table "Evaluation results" of the paper: J_r, J_r per step, J_c, rho_c, n_steps, v_x
-    ("light", "ppo_lsi"): (-4669, -13.4, 0.308, 0.0009, 348, 23.11),
-    ("light", "ltv_mpc"): (-1241, -5.1, 0.625, 0.0026, 244, 24.38),
-    ("light", "srmpc"): (-1108, -3.1, 0.215, 0.0006, 357, 24.63),
-    ("dense", "ppo_lsi"): (-4499, -16.4, 0.540, 0.002, 274, 22.47),
-    ("dense", "ltv_mpc"): (-334, -2.4, 0.788, 0.0057, 139, 24.79),
-    ("dense", "srmpc"): (-1211, -4.0, 0.353, 0.0012, 305, 24.47),
-}
-HEADER = ("| Algorithm | mean J_r (per step) | mean J_c | rho_c | mean n_steps | mean v_x [m/s] |\n"
-          "|---|---|---|---|---|---|")
-
-
-def ci(row: dict, key: str, digits: int) -> str:
-    low, high = row[f"{key}_ci95"]
-    return f"{row[key]:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
-
-
-def row_with_intervals(name: str, r: dict) -> str:
-    return (f"| {name} | {ci(r, 'mean_return', 0)} ({ci(r, 'mean_return_per_step', 1)}) | "
-            f"{ci(r, 'mean_event_cost', 3)} | {ci(r, 'cost_rate', 4)} | {ci(r, 'mean_n_steps', 0)} | "
-            f"{ci(r, 'mean_vx', 2)} |")
-
-
-def paper_row(name: str, values: tuple) -> str:
-    j_r, per_step, j_c, rho, steps, vx = values
-    return f"| {name} | {j_r:.0f} ({per_step:.1f}) | {j_c:.3f} | {rho:.4f} | {steps:.0f} | {vx:.2f} |"
-
-
-def method_row(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame]:
-    episodes = pd.read_csv(directory / "episodes.csv")
-    summary = json.loads((directory / "summary.json").read_text())
-    if len(episodes) != summary["episodes"]:
-        raise SystemExit(f"{directory}: episodes.csv has {len(episodes)} rows, summary.json {summary['episodes']}")
-    row = table_metrics_with_intervals(episodes, resamples, seed)
-    row["outcomes"] = summary.get("outcomes", {})
-    row["terminations"] = summary.get("terminations", {})
-    return row, episodes
-
-
-def write_outputs(outputs: dict[Path, str]) -> None:
-    """Write each text through a temporary file and a rename, so a crash never leaves half a file."""
-    for path, text in outputs.items():
-        temporary = path.with_name(path.name + ".tmp")
-        temporary.write_text(text)
-        os.replace(temporary, path)
+from pipelines.reporting import (
+    CONFIRMATION,
+    EVALUATION,
+    HEADER,
+    METHODS,
+    PAIRED_AGAINST,
+    PAPER,
+    ci,
+    method_row,
+    paper_row,
+    row_with_intervals,
+    write_outputs,
+)
+from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 
 
 def claims(traffic: dict, level: str) -> list[str]:
@@ -184,7 +139,7 @@ def crosscheck_lines(path: Path) -> list[str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--resamples", type=int, default=RESAMPLES, help="bootstrap resamples")
+    parser.add_argument("--resamples", type=int, default=BOOTSTRAP_RESAMPLES, help="bootstrap resamples")
     parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
     args = parser.parse_args()
     table, lines = {}, []

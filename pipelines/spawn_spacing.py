@@ -1,7 +1,7 @@
 """DVC stage: measure the spawn spacing of light and dense traffic -> results/scenario/spawn_spacing.json.
 
 Composes ``conf/`` itself (``dvc repro`` does not compose Hydra configs).
-Usage: python pipelines/spawn_spacing.py [--resets N]
+Usage: python -m pipelines.spawn_spacing [--resets N]
 """
 
 from __future__ import annotations

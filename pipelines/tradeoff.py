@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import yaml
-from paper_table import METHODS, PAPER, method_row, write_outputs
 
-from srmpc.confidence_intervals import paired_differences
+from pipelines.reporting import METHODS, PAPER, method_row, write_outputs
+from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 
 TWIN = Path("results/evaluation/twin")
 SWEEP = Path("results/evaluation/tradeoff")
@@ -340,8 +340,8 @@ def figure(report: dict, path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples")
-    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    parser.add_argument("--resamples", type=int, default=BOOTSTRAP_RESAMPLES, help="bootstrap resamples")
+    parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
     args = parser.parse_args()
     points, episodes = collect(args.resamples, args.seed)
     report = {}

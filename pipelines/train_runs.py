@@ -11,7 +11,7 @@ one fails, the others still finish (nothing they did is lost) and this script th
 the failed runs. SIGTERM or Ctrl-C is passed on to the running trainings, which save their checkpoint;
 a rerun resumes each from ``last.pt`` (finished runs are skipped by the trainer itself).
 
-    python pipelines/train_runs.py --jobs 2 "agent=ppo agent.seed=0 agent.output_dir=..." "agent=..."
+    python -m pipelines.train_runs --jobs 2 "agent=ppo agent.seed=0 agent.output_dir=..." "agent=..."
 
 Runs are named three ways, combined in this order (DVC's stages name them, conf/ defines them):
 

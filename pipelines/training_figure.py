@@ -1,6 +1,6 @@
 """The training figure (PPO, PPO-L-SI and Stable-Baselines3's PPO, over seeds) and ``results/training/summary.json``.
 
-    python pipelines/training_figure.py [--training-dir results/training] [--seeds 0 1 2] [--window 0.05]
+    python -m pipelines.training_figure [--training-dir results/training] [--seeds 0 1 2] [--window 0.05]
 
 Reads each agent's ``<training-dir>/<agent>/seed_<seed>/metrics.csv`` (one row per iteration, written
 by the trainer; DVC stage ``train``) and writes:
@@ -24,14 +24,12 @@ import argparse
 import csv
 import json
 import math
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from srmpc.agents.report import read_metrics, summarize_training
+from srmpc.confidence_intervals import t_interval
 
-from srmpc.agents.report import read_metrics, summarize_training  # noqa: E402
-from srmpc.confidence_intervals import t_interval  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI", "ppo_sb3": "PPO (Stable-Baselines3)"}
 """ppo_sb3: the peer PPO (srmpc.sb3_ppo, DVC stage ``train_sb3``), PPO's settings in another implementation."""

@@ -15,8 +15,8 @@ integrity and the sha256 of the inlined text. Their licences go to ``pipelines/v
 
 Rebuild (needs npm and the registry, e.g. after a DVC upgrade changed the versions)::
 
-    .venv/bin/python pipelines/vega_offline_template.py               # npm pack into a temporary directory
-    .venv/bin/python pipelines/vega_offline_template.py --tarballs D  # D holds vega-5.20.2.tgz etc. already
+    .venv/bin/python -m pipelines.vega_offline_template               # npm pack into a temporary directory
+    .venv/bin/python -m pipelines.vega_offline_template --tarballs D  # D holds vega-5.20.2.tgz etc. already
 """
 
 from __future__ import annotations

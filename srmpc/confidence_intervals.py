@@ -19,6 +19,10 @@ import pandas as pd
 
 Z_95 = 1.959963984540054
 """Standard normal quantile of 0.975."""
+BOOTSTRAP_RESAMPLES = 2000
+"""Resamples of every bootstrap the results report (results/*.md, and the table ``python -m srmpc`` ends with)."""
+BOOTSTRAP_SEED = 0
+"""Seed of those bootstraps, so an interval is the same wherever it is printed."""
 
 
 def wilson_interval(successes: float, trials: int, z: float = Z_95) -> tuple[float, float]:

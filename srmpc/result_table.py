@@ -21,11 +21,7 @@ from rich.console import Console, Group
 from rich.table import Table
 from rich.text import Text
 
-from srmpc.confidence_intervals import table_metrics_with_intervals
-
-BOOTSTRAP_RESAMPLES = 2000
-BOOTSTRAP_SEED = 0
-"""The bootstrap of ``pipelines/paper_table.py``, so the printed intervals are the table's."""
+from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, table_metrics_with_intervals
 
 EVALUATION_ROWS = (  # (summary key, label, digits)
     ("mean_return", "J_r    return (sum of r')", 0),

@@ -62,10 +62,11 @@ def test_every_stage_is_locked_with_its_command():
 
 
 def _training_runs(cmd: str) -> list[list[str]]:
-    """The runs one train_runs.py command names, each as its CLI overrides."""
+    """The runs one ``python -m pipelines.train_runs`` command names, each as its CLI overrides."""
     import shlex
 
-    runs, _ = train_runs.parse_arguments(shlex.split(cmd)[2:])
+    words = shlex.split(cmd)  # python -m pipelines.train_runs <arguments>
+    runs, _ = train_runs.parse_arguments(words[words.index("pipelines.train_runs") + 1:])
     return [["stage=train", *shlex.split(run)] for run in runs]
 
 

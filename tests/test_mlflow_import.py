@@ -8,19 +8,16 @@ import copy
 import csv
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import mlflow
 import pytest
 import yaml
 
+from pipelines.mlflow_import import IMPORT_TAG, import_results, results_of, stage_md5
+from srmpc.tracking import ensure_experiment
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "pipelines"))
-
-from mlflow_import import IMPORT_TAG, import_results, results_of, stage_md5  # noqa: E402
-
-from srmpc.tracking import ensure_experiment  # noqa: E402
 
 EVALUATION, TRAINING = "results/evaluation/twin/lane_keeping_light", "results/training/ablation/ppo"
 
@@ -125,7 +122,7 @@ def test_a_rerun_stage_supersedes_its_runs_and_a_dead_import_is_redone(clone, st
 ])
 def test_sweep_points_are_tagged_by_their_planner_setting(stage, margin, planner, variant):
     """The runs table groups the trade-off sweep by method and planner setting (tags planner, margin_m)."""
-    from mlflow_import import _variant
+    from pipelines.mlflow_import import _variant
 
     controller = "ltv_mpc" if "ltv_mpc" in stage else "srmpc"
     config = {"evaluation": {"controller": controller},

@@ -123,9 +123,9 @@ CHARTS_JS = """[...document.querySelectorAll('.js-plotly-plot')].map(plot => {
 """Each plotly chart of a run's metrics page: its card's text, its x tick labels, the vertices of its lines."""
 
 
-def _pipeline_run(*args: str, uri: str, artifacts: str) -> str:
+def _mlflow_parent_run(*args: str, uri: str, artifacts: str) -> str:
     env = {k: v for k, v in os.environ.items() if k != PARENT_RUN_ENV}
-    done = subprocess.run([sys.executable, str(ROOT / "pipelines" / "pipeline_run.py"), *args, "--",
+    done = subprocess.run([sys.executable, "-m", "pipelines.mlflow_parent_run", *args, "--",
                            f"tracking.uri={uri}", f"tracking.artifact_location={artifacts}"],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -140,19 +140,19 @@ def _ui_number(value: float) -> str:
 @pytest.fixture
 def fresh_clone_ui(tmp_path):
     """What ``make reproduce`` does on a fresh clone with every stage up to date, into a temporary store:
-    ``pipeline_run.py start``, then ``import --parent`` (twice: the second imports nothing); then the UI.
+    ``mlflow_parent_run start``, then ``import --parent`` (twice: the second imports nothing); then the UI.
     Yields (base URL, experiment id, parent run id, client)."""
-    sys.path.insert(0, str(ROOT / "pipelines"))
     import mlflow
     import yaml
-    from mlflow_import import results_of
+
+    from pipelines.mlflow_import import results_of
 
     uri, artifacts = f"sqlite:///{tmp_path / 'mlflow.db'}", str(tmp_path / "mlruns")
     expected = len(results_of(yaml.safe_load((ROOT / "dvc.lock").read_text())))
-    parent = _pipeline_run("start", "--name", "make reproduce", uri=uri, artifacts=artifacts).splitlines()[-1]
-    first = _pipeline_run("import", "--parent", parent, uri=uri, artifacts=artifacts)
+    parent = _mlflow_parent_run("start", "--name", "make reproduce", uri=uri, artifacts=artifacts).splitlines()[-1]
+    first = _mlflow_parent_run("import", "--parent", parent, uri=uri, artifacts=artifacts)
     assert f"{expected} results imported from dvc.lock, 0 already there" in first, first
-    second = _pipeline_run("import", "--parent", parent, uri=uri, artifacts=artifacts)
+    second = _mlflow_parent_run("import", "--parent", parent, uri=uri, artifacts=artifacts)
     assert f"0 results imported from dvc.lock, {expected} already there" in second, second
     client = mlflow.MlflowClient(uri)
     experiment_id = client.get_experiment_by_name("srmpc").experiment_id
@@ -166,7 +166,7 @@ def test_fresh_clone_runs_table_shows_the_tables_methods_with_their_j_c_and_a_tr
     if CHROMIUM is None:
         pytest.skip("Chromium is not installed; install it from Debian's packages: apt-get install chromium")
     base, experiment_id, parent, client = fresh_clone_ui
-    from paper_table import CONFIRMATION, EVALUATION  # the table's rows: the twin's runs, the confirmation's
+    from pipelines.reporting import CONFIRMATION, EVALUATION  # the table's rows: the twin's runs, the confirmation's
 
     table = json.loads((ROOT / "results" / "table.json").read_text())
     rows = {}  # run name -> the J_c the paper's table gives its method and traffic

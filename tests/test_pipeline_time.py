@@ -49,7 +49,7 @@ def test_stage_kinds_follow_the_graph(project):
 def test_training_stages_are_found_by_their_command(tmp_path):
     (tmp_path / "dvc.yaml").write_text(
         "stages:\n  a:\n    cmd: python -m srmpc stage=train agent=ppo\n"
-        "  b:\n    cmd: python pipelines/train_runs.py 'agent=ppo'\n"
+        "  b:\n    cmd: python -m pipelines.train_runs 'agent=ppo'\n"
         "  c:\n    cmd: python -m srmpc +experiment=light_traffic\n")
     assert pipeline_time.training_stage_names(tmp_path / "dvc.yaml") == {"a", "b"}
 
@@ -133,5 +133,5 @@ def test_evaluation_stages_are_found_by_their_command(tmp_path):
         "stages:\n  evaluate:\n    matrix: {m: [a]}\n    cmd: python -m srmpc evaluation.controller=${item.m}\n"
         "  sb3:\n    foreach: [light]\n    do:\n      cmd: python -m srmpc scenario=${item}\n"
         "  train:\n    cmd: python -m srmpc stage=train agent=ppo\n"
-        "  table:\n    cmd: python pipelines/paper_table.py\n")
+        "  table:\n    cmd: python -m pipelines.paper_table\n")
     assert pipeline_time.evaluation_stage_names(tmp_path / "dvc.yaml") == {"evaluate", "sb3"}

@@ -1,16 +1,10 @@
-"""benchmarks/table_vs_revision.py: a regenerated table cell agrees with its old value when it moved less
+"""pipelines/table_vs_revision.py: a regenerated table cell agrees with its old value when it moved less
 than its noise, and is flagged when it moved more."""
-
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
-SPEC = importlib.util.spec_from_file_location("table_vs_revision", ROOT / "benchmarks" / "table_vs_revision.py")
-table_vs_revision = importlib.util.module_from_spec(SPEC)
-SPEC.loader.exec_module(table_vs_revision)
+from pipelines import table_vs_revision
 
 
 def _episodes(rng: np.random.Generator, n: int = 300) -> pd.DataFrame:

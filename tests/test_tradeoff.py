@@ -12,9 +12,7 @@ import pandas as pd
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "pipelines"))
-import tradeoff  # noqa: E402
+from pipelines import tradeoff
 
 EPISODES = 200
 

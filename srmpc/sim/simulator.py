@@ -164,14 +164,6 @@ class TwinSimulator:
             final_observation=out.final_observation.copy() if auto_reset else None,
         )
 
-    def step_into(self, actions: np.ndarray, auto_reset: bool = False) -> engine.StepOutputs:
-        """As :meth:`step` without checks or copies: the returned arrays are overwritten next step."""
-        out = self._outputs
-        kernel = engine.step_parallel if self._parallel() else engine.step_serial
-        kernel(self.state.arrays(), self.constants, out, actions, auto_reset)
-        self._observation[...] = out.observation
-        return out
-
     def rollout(self, policy, horizon: int, scenes=None, record_others: bool = False):
         """:func:`srmpc.sim.rollout.rollout` of ``policy`` from the current scenes (or ``scenes`` only).
 

@@ -1,9 +1,9 @@
 """The MLflow parent run of one pipeline invocation (``make reproduce``).
 
-    python pipelines/pipeline_run.py start [--name NAME]        # prints the new run's id
-    python pipelines/pipeline_run.py finish RUN_ID [--status N]  # logs results, ends the run
-    python pipelines/pipeline_run.py import [--parent RUN_ID]  # dvc.lock's results as (child) runs
-    python pipelines/pipeline_run.py url [--base http://127.0.0.1:5000]   # the UI's runs table
+    python -m pipelines.mlflow_parent_run start [--name NAME]        # prints the new run's id
+    python -m pipelines.mlflow_parent_run finish RUN_ID [--status N]  # logs results, ends the run
+    python -m pipelines.mlflow_parent_run import [--parent RUN_ID]  # dvc.lock's results as (child) runs
+    python -m pipelines.mlflow_parent_run url [--base http://127.0.0.1:5000]   # the UI's runs table
 
 ``make reproduce`` starts the parent, runs ``dvc repro`` with ``SRMPC_PARENT_RUN_ID`` set to its id (every
 ``python -m srmpc`` of a stage becomes a child run, tagged method, traffic and seed: srmpc/tracking.py)
@@ -22,18 +22,17 @@ import argparse
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from srmpc.config.compose import compose_config, to_objects  # noqa: E402
-from srmpc.tracking import (  # noqa: E402
-    TrackingServerUnreachable,
-    check_tracking_server,
+from srmpc.config.compose import compose_config, to_objects
+from srmpc.tracking import (
+    TrackingStoreUnusable,
+    check_tracking_store,
     ensure_experiment,
     finish_parent_run,
     runs_table_url,
     start_parent_run,
 )
+
+ROOT = Path(__file__).resolve().parents[1]
 
 ARTIFACTS = (  # (artifact folder of the parent run, local file or folder)
     ("table", ROOT / "results" / "table.md"),
@@ -61,16 +60,17 @@ def main() -> None:
     overrides = [o for o in overrides if o != "--"]
     tracking = to_objects(compose_config([f"tracking.{o.removeprefix('tracking.')}" for o in overrides])).tracking
     try:
-        check_tracking_server(tracking.uri)
-    except TrackingServerUnreachable as error:
-        print(f"pipeline_run: error: {error}", file=sys.stderr)
+        check_tracking_store(tracking.uri)
+    except TrackingStoreUnusable as error:
+        print(f"mlflow_parent_run: error: {error}", file=sys.stderr)
         sys.exit(2)
     if args.command == "start":
         print(start_parent_run(tracking.uri, tracking.experiment_name, tracking.artifact_location, args.name,
                                {"stage": "pipeline"}))
     elif args.command == "import":
         import mlflow
-        from mlflow_import import import_results
+
+        from pipelines.mlflow_import import import_results
 
         client = mlflow.MlflowClient(tracking_uri=tracking.uri)
         experiment_id = ensure_experiment(client, tracking.experiment_name, tracking.artifact_location)

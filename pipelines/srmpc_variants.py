@@ -17,11 +17,9 @@ import argparse
 import json
 from pathlib import Path
 
-from paper_table import method_row, row_with_intervals, write_outputs
+from pipelines.reporting import EVALUATION, method_row, row_with_intervals, write_outputs
+from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 
-from srmpc.confidence_intervals import paired_differences
-
-EVALUATION = Path("results/evaluation/twin")
 VARIANTS = {
     "ltv_mpc": ("ltv_mpc", "LTV-MPC (same planner config)"),
     "ppo_lsi": ("ppo_lsi", "PPO-L-SI (the policy alone)"),
@@ -40,8 +38,8 @@ TARGET_MIN_VX_MPS = 23.5
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples")
-    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    parser.add_argument("--resamples", type=int, default=BOOTSTRAP_RESAMPLES, help="bootstrap resamples")
+    parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
     args = parser.parse_args()
     ablation, lines = {}, []
     for traffic in ("light", "dense"):

@@ -1,10 +1,10 @@
 """Every cell of the paper's table now against the same cell at another git revision, paired on the seeds.
 
-    python benchmarks/table_vs_revision.py --revision <commit> [--out results/benchmarks/table_vs_revision.json]
+    python -m pipelines.table_vs_revision --revision <commit> [--out results/benchmarks/table_vs_revision.json]
 
 A change that alters floating-point results (a faster solver, a new kernel) regenerates every evaluation;
 this says whether the table moved more than its own noise. For each traffic level and each method of
-``pipelines/paper_table.py`` (the episodes of ``results/evaluation/twin/<method>_<traffic>`` and
+``pipelines/reporting.py`` (the episodes of ``results/evaluation/twin/<method>_<traffic>`` and
 ``results/evaluation/confirmation/srmpc_recommended_<traffic>``), it reads that ``episodes.csv`` in the
 working tree ("after") and at ``--revision`` (``git show``, "before"), and gives per metric (J_r, J_c,
 n_steps, v_x):
@@ -25,29 +25,20 @@ import io
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "pipelines"))
-
-from paper_table import (  # noqa: E402  (the table's rows, where their episodes live, its bootstrap)
+from pipelines.reporting import CONFIRMATION, EVALUATION, METHODS  # the table's rows, where their episodes live
+from srmpc.confidence_intervals import (
+    BOOTSTRAP_RESAMPLES,
     BOOTSTRAP_SEED,
-    CONFIRMATION,
-    EVALUATION,
-    METHODS,
-    RESAMPLES,
-)
-
-from srmpc.confidence_intervals import (  # noqa: E402
     PAIRED_METRICS,
     paired_differences,
     table_metrics_with_intervals,
 )
 
+ROOT = Path(__file__).resolve().parents[1]
 TRAFFIC = ("light", "dense")
 OUTPUT = ROOT / "results" / "benchmarks" / "table_vs_revision.json"
 
@@ -76,9 +67,9 @@ def _inside(value: float, low: float, high: float) -> bool:
 
 def compare_cells(before: pd.DataFrame, after: pd.DataFrame) -> dict:
     """The four paired metrics of one table row: before, after, paired difference, agreement."""
-    row_before = table_metrics_with_intervals(before, RESAMPLES, BOOTSTRAP_SEED)
-    row_after = table_metrics_with_intervals(after, RESAMPLES, BOOTSTRAP_SEED)
-    paired = paired_differences(after, before, RESAMPLES, BOOTSTRAP_SEED)
+    row_before = table_metrics_with_intervals(before, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
+    row_after = table_metrics_with_intervals(after, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
+    paired = paired_differences(after, before, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
     columns = list(PAIRED_METRICS)
     merged = after.merge(before, on="seed", suffixes=("_a", "_b"))
     identical = int((merged[[f"{c}_a" for c in columns]].to_numpy()
