@@ -36,7 +36,7 @@ reproduce: install
 videos: install
 	dvc repro --single-item videos
 
-## The default test suite (slow tests excluded), on every core (pytest-xdist; the longest files first).
+## The default test suite (slow tests excluded), on every core (pytest-xdist, one test file per worker at a time).
 test: install
 	python -m pytest -n auto --dist loadfile
 

@@ -8,7 +8,7 @@ every run start), which marks them as model training rather than GenAI. MLflow 3
 its view by a switch of its own, so :func:`runs_table_url` names it. Runs are tagged ``stage``,
 ``method``, ``traffic`` and ``seed``. When the environment variable ``SRMPC_PARENT_RUN_ID`` names a
 run of the same store and experiment, the run is nested under it: ``make reproduce`` starts one parent
-run per pipeline invocation (``pipelines/pipeline_run.py``) and every DVC stage's ``python -m srmpc``
+run per pipeline invocation (``pipelines/mlflow_parent_run.py``) and every DVC stage's ``python -m srmpc``
 becomes its child; without the variable (or with an unknown id) a run stands alone.
 """
 
