@@ -47,11 +47,11 @@ test-slow: install
 lint: install
 	ruff check srmpc tests pipelines benchmarks
 
-## MLflow UI on http://127.0.0.1:5000 over the local SQLite store. MLflow 3.17 opens experiments in its
-## GenAI view unless the UI is in "Model training" mode (switch at the top left): the printed URL opens
-## the runs table (metric columns: Columns -> Metrics).
+## MLflow UI on http://127.0.0.1:5000 over the local SQLite store. The printed URL opens the runs table on
+## the results: one row per method and traffic of results/table.json with J_c, rho_c, J_r, n_steps, v_x
+## (saved view "Results table"; before any `make reproduce`, every run with those columns).
 ui: install
-	@echo "Runs table: $$(python -m pipelines.mlflow_parent_run url 2>/dev/null)"
+	@echo "Results: $$(python -m pipelines.mlflow_parent_run url 2>/dev/null)"
 	mlflow ui --backend-store-uri sqlite:///mlflow.db --default-artifact-root ./mlruns --host 127.0.0.1 --port 5000
 
 clean:

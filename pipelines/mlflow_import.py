@@ -13,11 +13,18 @@ of the pipeline's parent run:
   step-wise metric over env steps (``frames``), so the chart view draws the training curves, the
   summary as ``final/*`` metrics, and its files (``policy.pt`` included) as artifacts.
 
-Runs carry the tags of a live run (``stage``, ``method``, ``traffic``, ``seed``; srmpc/tracking.run_tags)
-and ``variant`` (SRMPC's variant, the planner setting, the ablation's run), ``planner``, ``margin_m``
-(the planner's longitudinal safety margin), ``simulator``, ``output_dir``, ``dvc_stage`` and
-``dvc_lock_md5``: the MD5 of the stage's entry in ``dvc.lock`` (command, dependency and output hashes),
-which changes whenever DVC reruns the stage.
+What a run is comes from its directory's ``config.yaml`` alone, never from the directory's or the DVC
+stage's name: its name (:func:`run_name_of`, e.g. ``srmpc_recommended-light-twin-seed100000``) and the tags
+of a live run (``stage``, ``method``, ``traffic``, ``seed``; srmpc/tracking.run_tags, which names a method
+as the results table does), ``variant`` (SRMPC's variant and the planner setting; a training's changed
+agent settings), ``planner`` (named by what it changes: ``margin_1m``, ``margin_4m``,
+``margin_1m_speed_weight_2``; srmpc/tracking.planner_setting), ``margin_m`` and ``simulator``. Bookkeeping
+tags: ``output_dir``, ``dvc_stage`` and ``dvc_lock_md5``: the MD5 of the stage's entry in ``dvc.lock``
+(command, dependency and output hashes), which changes whenever DVC reruns the stage.
+
+Every import then tags ``results_table=true`` the run of each row of ``results/table.json`` (the current
+run of that method and traffic whose numbers are the row's) and clears the tag elsewhere: the runs table's
+``results`` view, which ``make ui`` opens, filters on it.
 
 Idempotent: a directory whose FINISHED imported run has the stage's current ``dvc_lock_md5`` is skipped,
 so a second ``make reproduce`` adds nothing. When the hash changed (DVC reran the stage), a new run is
@@ -32,6 +39,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import fcntl
+import functools
 import hashlib
 import json
 import math
@@ -43,7 +51,14 @@ from typing import Any
 
 import yaml
 
-from srmpc.tracking import MLFLOW_BATCH_LIMIT, flatten, run_tags
+from srmpc.tracking import (
+    MLFLOW_BATCH_LIMIT,
+    NAMED_METHODS,
+    RESULTS_TABLE_TAG,
+    flatten,
+    planner_setting,
+    run_tags,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 IMPORT_TAG, CURRENT_TAG, SUPERSEDED_TAG = "dvc_lock_md5", "current", "superseded_by"
@@ -89,24 +104,44 @@ def summary_metrics(summary: dict, prefix: str = "") -> dict[str, float]:
     return metrics
 
 
-def _variant(stage: str, config: dict, kind: str, directory: str) -> dict[str, str]:
-    """``variant``, ``planner``, ``margin_m`` and ``simulator`` tags of a result."""
-    tags: dict[str, str] = {}
+@functools.lru_cache(maxsize=8)
+def _agent_defaults(name: str) -> dict[str, Any]:
+    """The ``agent`` section that ``agent=<name>`` composes ({} when conf/agent has no such option)."""
+    from omegaconf import OmegaConf
+
+    from srmpc.config.compose import ConfigError, compose_config
+
+    try:
+        return OmegaConf.to_container(compose_config([f"agent={name}"]), resolve=True)["agent"]
+    except ConfigError:
+        return {}
+
+
+def _number(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def training_setting(config: dict) -> str:
+    """What a training's ``agent`` section changes from its agent's defaults (``agent=<name>``), as
+    ``key=value`` joined by ``,`` in the config's order (``cost_gamma=0,multiplier_lr=0.001``), or
+    ``default``. The seed, the task and where it writes are not settings."""
+    agent = config.get("agent") or {}
+    defaults = _agent_defaults(str(agent.get("name")))
+    changed = [f"{key}={_number(value)}" for key, value in agent.items()
+               if key in defaults and key not in ("seed", "task", "output_dir") and value != defaults[key]]
+    return ",".join(changed) or "default"
+
+
+def result_tags(config: dict, kind: str) -> dict[str, str]:
+    """``variant``, ``planner``, ``margin_m`` and ``simulator`` tags of a result, read from its composed
+    config alone. variant: an evaluation's SRMPC variant and planner setting (``track_rollout+margin_1m``),
+    a training's changed agent settings (:func:`training_setting`)."""
     if kind == "training":
-        if "/ablation/" in f"/{directory}/":
-            tags["variant"] = Path(directory).name
-        return tags
-    planner = "default"  # the conf/planner option, from the stage's matrix values
-    values = stage.split("@", 1)[1].split("-") if "@" in stage else []
-    if stage.startswith("evaluate_planner_variant@"):
-        planner = values[0]
-    elif stage.startswith("evaluate_tradeoff@"):  # <method>-<planner>-<traffic>
-        planner = values[1]
-    elif stage.startswith("evaluate_confirmation@"):
-        margin = (config.get("planner") or {}).get("safety_margin_longitudinal_m")
-        planner = "default" if margin in (None, 8.0) else f"margin_{margin:g}m"
-    tags["planner"] = planner
-    margin = (config.get("planner") or {}).get("safety_margin_longitudinal_m")
+        return {"variant": training_setting(config)}
+    planner_section = config.get("planner") or {}
+    planner = planner_setting(planner_section)
+    tags = {"planner": planner}
+    margin = planner_section.get("safety_margin_longitudinal_m")
     if margin is not None:
         tags["margin_m"] = str(margin)
     variants = []
@@ -121,17 +156,23 @@ def _variant(stage: str, config: dict, kind: str, directory: str) -> dict[str, s
     return tags
 
 
-def run_name_of(kind: str, config: dict, directory: str, planner: str = "default") -> str:
-    """``evaluate-<controller>[-<planner>]-<traffic>-<simulator folder>`` (the live run's name, srmpc/__main__.py,
-    with the planner setting and where it ran), or ``train-<the directory under results/training>``."""
+def run_name_of(kind: str, config: dict) -> str:
+    """A result's run name, from its config: ``<method>[-<planner setting>]-<traffic>-<simulator>-seed<n>``
+    (the planner setting unless the method's name implies it, srmpc/tracking.py ``NAMED_METHODS``), so the
+    runs table sorted by name lists a method's traffic levels side by side; ``train-<agent>-seed_<n>``
+    with ``-<changed settings>`` for a training that changes its agent's defaults."""
+    tags = run_tags(config)
     if kind == "training":
-        return "train-" + "-".join(Path(directory).parts[2:])  # results/training/<agent>/<seed> -> train-agent-seed
-    controller = (config.get("evaluation") or {}).get("controller", "?")
-    if controller == "srmpc":
-        controller = f"srmpc-{(config.get('srmpc') or {}).get('variant', 'paper')}"
-    if planner != "default":
-        controller = f"{controller}-{planner}"
-    return f"evaluate-{controller}-{(config.get('scenario') or {}).get('traffic', '?')}-{Path(directory).parent.name}"
+        setting = training_setting(config)
+        return f"train-{tags.get('method', '?')}-seed_{tags.get('seed', '?')}" + (
+            f"-{setting}" if setting != "default" else "")
+    evaluation = config.get("evaluation") or {}
+    planner = planner_setting(config.get("planner"))
+    method = tags.get("method", "?")
+    if planner != "default" and method not in NAMED_METHODS.values():
+        method = f"{method}-{planner}"
+    return (f"{method}-{tags.get('traffic', '?')}-{evaluation.get('simulator', '?')}"
+            f"-seed{tags.get('seed', '?')}")
 
 
 def _training_metrics(path: Path, Metric: Any) -> list[Any]:
@@ -168,9 +209,8 @@ def import_result(client: Any, experiment_id: str, parent_run_id: str | None, re
     config = config if isinstance(config, dict) else {}
     if result["kind"] == "training":
         config.setdefault("stage", "train")
-    variant = _variant(result["stage"], config, result["kind"], result["dir"])
-    name = run_name_of(result["kind"], config, result["dir"], variant.get("planner", "default"))
-    tags = {**run_tags(config), **variant,
+    name = run_name_of(result["kind"], config)
+    tags = {**run_tags(config), **result_tags(config, result["kind"]),
             "output_dir": result["dir"], "dvc_stage": result["stage"], IMPORT_TAG: result["md5"], CURRENT_TAG: "true",
             "imported_from": "dvc.lock", MLFLOW_RUN_NAME: name}
     if parent_run_id:
@@ -204,23 +244,71 @@ def _import_lock(uri: str, experiment_id: str) -> Iterator[None]:
         yield
 
 
+def _result_runs(client: Any, experiment_id: str) -> dict[str, list[Any]]:
+    """The experiment's runs of result directories (tag ``output_dir``), by directory."""
+    runs: dict[str, list[Any]] = {}
+    page = None
+    while True:
+        batch = client.search_runs([experiment_id], filter_string="tags.output_dir LIKE '%'", max_results=1000,
+                                   page_token=page)
+        for run in batch:
+            runs.setdefault(run.data.tags["output_dir"], []).append(run)
+        page = batch.token
+        if not page:
+            return runs
+
+
+TABLE_NUMBERS = ("episodes", "mean_event_cost", "cost_rate", "mean_return", "mean_n_steps", "mean_vx")
+"""The numbers a run must share with a row of ``results/table.json`` to be that row's run."""
+
+
+def table_row_of(run: Any, table: dict) -> tuple[str, str] | None:
+    """(traffic, method) of the row of ``table`` (results/table.json, parsed) that ``run`` is: the row of
+    its ``traffic`` and ``method`` tags whose numbers (:data:`TABLE_NUMBERS`) all equal the run's metrics."""
+    tags, metrics = run.data.tags, run.data.metrics
+    row = (table.get(tags.get("traffic")) or {}).get(tags.get("method"))
+    if not isinstance(row, dict):
+        return None
+    for key in TABLE_NUMBERS:
+        if key not in row or key not in metrics or not math.isclose(float(row[key]), metrics[key],
+                                                                    rel_tol=1e-12, abs_tol=1e-15):
+            return None
+    return tags["traffic"], tags["method"]
+
+
+def mark_table_rows(client: Any, experiment_id: str, table_path: Path) -> tuple[int, int]:
+    """Tag ``results_table=true`` the current FINISHED runs that are rows of the results table (each row's
+    run, :func:`table_row_of`), and remove the tag from every other run; returns (rows with a run, rows).
+    The runs table's ``results`` view (srmpc/tracking.py) filters on that tag."""
+    table = json.loads(table_path.read_text()) if table_path.is_file() else {}
+    rows = {(traffic, method) for traffic, methods in table.items() for method in (methods or {})}
+    found = set()
+    for runs in _result_runs(client, experiment_id).values():
+        for run in runs:
+            row = None
+            if (run.info.lifecycle_stage == "active" and run.info.status == "FINISHED"
+                    and run.data.tags.get(CURRENT_TAG) != "false"):
+                row = table_row_of(run, table)
+            marked = run.data.tags.get(RESULTS_TABLE_TAG) == "true"
+            if row is not None:
+                found.add(row)
+                if not marked:
+                    client.set_tag(run.info.run_id, RESULTS_TABLE_TAG, "true")
+            elif RESULTS_TABLE_TAG in run.data.tags:
+                client.delete_tag(run.info.run_id, RESULTS_TABLE_TAG)
+    return len(found & rows), len(rows)
+
+
 def import_results(client: Any, experiment_id: str, parent_run_id: str | None, lock_path: Path = ROOT / "dvc.lock",
-                   root: Path = ROOT) -> dict[str, int]:
-    """Import what :func:`results_of` finds that is not yet in the experiment (module docstring); returns
-    the counts ``{"imported", "skipped", "superseded", "deleted"}``."""
+                   root: Path = ROOT, table_path: Path | None = None) -> dict[str, int]:
+    """Import what :func:`results_of` finds that is not yet in the experiment (module docstring), then mark
+    the rows of the results table (``table_path``, default ``<root>/results/table.json``:
+    :func:`mark_table_rows`); returns the counts ``{"imported", "skipped", "superseded", "deleted",
+    "table_rows", "table_rows_with_run"}``."""
     lock = yaml.safe_load(lock_path.read_text()) or {}
     counts = {"imported": 0, "skipped": 0, "superseded": 0, "deleted": 0}
     with _import_lock(client.tracking_uri, experiment_id):
-        runs: dict[str, list[Any]] = {}
-        page = None
-        while True:
-            batch = client.search_runs([experiment_id], filter_string="tags.output_dir LIKE '%'", max_results=1000,
-                                       page_token=page)
-            for run in batch:
-                runs.setdefault(run.data.tags["output_dir"], []).append(run)
-            page = batch.token
-            if not page:
-                break
+        runs = _result_runs(client, experiment_id)
         for result in results_of(lock, root):
             earlier = runs.get(result["dir"], [])
             if any(r.data.tags.get(IMPORT_TAG) == result["md5"] and r.info.status == "FINISHED"
@@ -239,4 +327,6 @@ def import_results(client: Any, experiment_id: str, parent_run_id: str | None, l
                     client.set_tag(run.info.run_id, CURRENT_TAG, "false")
                     client.set_tag(run.info.run_id, SUPERSEDED_TAG, run_id)
                     counts["superseded"] += 1
+        counts["table_rows_with_run"], counts["table_rows"] = mark_table_rows(
+            client, experiment_id, table_path or root / "results" / "table.json")
     return counts

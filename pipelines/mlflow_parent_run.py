@@ -12,6 +12,9 @@ logs as the parent's artifacts what exists of the paper's table (``table/``), th
 (``figures/``), the episode videos (``videos/``) and the training summary (``training/``).
 Between the two, ``import --parent RUN_ID`` logs every evaluation and training result that ``dvc.lock`` records as
 a child run, once per stage hash (pipelines/mlflow_import.py), so a fresh clone's MLflow holds them all.
+``url`` prints the runs table opened on the saved view ``results`` (the rows of ``results/table.json``, flat,
+sorted by run name, with their tags and J_c, rho_c, J_r, n_steps, v_x), or, when no run is such a row yet,
+on ``metrics`` (every run, with those columns): srmpc/tracking.py ``EXPERIMENT_TAGS``.
 The tracking store and experiment are the ones ``python -m srmpc`` uses (``conf/tracking``), with
 ``tracking.*`` overrides passed after ``--``.
 """
@@ -24,6 +27,9 @@ from pathlib import Path
 
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.tracking import (
+    METRICS_VIEW,
+    RESULTS_FILTER,
+    RESULTS_VIEW,
     TrackingStoreUnusable,
     check_tracking_store,
     ensure_experiment,
@@ -54,7 +60,7 @@ def main() -> None:
     finish.add_argument("--status", type=int, default=0, help="exit status of what ran under the parent")
     imports = commands.add_parser("import", help="log dvc.lock's evaluation and training results as runs")
     imports.add_argument("--parent", default=None, help="the parent run's id (default: the runs stand alone)")
-    url = commands.add_parser("url", help="print the UI's runs table of the experiment, with the paper's metrics")
+    url = commands.add_parser("url", help="print the UI's runs table of the experiment, on the results table's runs")
     url.add_argument("--base", default="http://127.0.0.1:5000", help="where the UI is served")
     args, overrides = parser.parse_known_args()
     overrides = [o for o in overrides if o != "--"]
@@ -76,15 +82,17 @@ def main() -> None:
         experiment_id = ensure_experiment(client, tracking.experiment_name, tracking.artifact_location)
         counts = import_results(client, experiment_id, args.parent)
         print("MLflow: {imported} results imported from dvc.lock, {skipped} already there, "
-              "{superseded} earlier runs superseded".format(**counts))
+              "{superseded} earlier runs superseded; {table_rows_with_run} of the {table_rows} rows of "
+              "results/table.json have their run".format(**counts))
     elif args.command == "finish":
         finish_parent_run(tracking.uri, args.run_id, ARTIFACTS, succeeded=args.status == 0)
     else:
         import mlflow
 
         client = mlflow.MlflowClient(tracking_uri=tracking.uri)
-        print(runs_table_url(args.base, ensure_experiment(client, tracking.experiment_name,
-                                                          tracking.artifact_location)))
+        experiment_id = ensure_experiment(client, tracking.experiment_name, tracking.artifact_location)
+        has_table = client.search_runs([experiment_id], filter_string=RESULTS_FILTER, max_results=1)
+        print(runs_table_url(args.base, experiment_id, RESULTS_VIEW if has_table else METRICS_VIEW))
 
 
 if __name__ == "__main__":

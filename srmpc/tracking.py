@@ -15,6 +15,8 @@ becomes its child; without the variable (or with an unknown id) a run stands alo
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import functools
 import json
 import os
 import socket
@@ -32,19 +34,38 @@ METRICS_FLUSH_S = 5.0
 """How long :class:`Run` buffers metrics before writing them (the MLflow UI lags by at most this)."""
 PARENT_RUN_ENV = "SRMPC_PARENT_RUN_ID"
 """Environment variable holding the id of the run that new runs nest under (see the module doc)."""
-RUNS_TABLE_VIEW = "paper"
-"""Share key of the runs-table view every experiment carries (see :func:`runs_table_url`)."""
-RUNS_TABLE_COLUMNS = [f"tags.`{tag}`" for tag in ("method", "traffic", "seed")] + [
+RESULTS_TABLE_TAG = "results_table"
+"""Tag (value ``"true"``) of the current run whose numbers are a row of ``results/table.json``
+(pipelines/mlflow_import.py sets and clears it on every import)."""
+RESULTS_VIEW, METRICS_VIEW = "results", "metrics"
+"""Share keys of the two runs-table views every experiment carries (see :data:`EXPERIMENT_TAGS`)."""
+RUNS_TABLE_COLUMNS = [f"tags.`{tag}`" for tag in ("method", "traffic", "planner", "simulator", "seed")] + [
     f"metrics.`{metric}`" for metric in ("mean_event_cost", "cost_rate", "mean_return", "mean_n_steps", "mean_vx")]
-"""The view's columns: the run's tags, then J_c, rho_c, J_r, n_steps, v_x (MLflow shows no metric by default)."""
+"""The views' columns: the run's tags, then J_c, rho_c, J_r, n_steps, v_x (MLflow shows no metric by default)."""
+RESULTS_FILTER = f'tags.{RESULTS_TABLE_TAG} = "true"'
+"""The results view's filter: the runs of the table's rows. The pipeline's parent run does not match, so
+its children are listed flat (the UI nests a child only under a parent it lists)."""
+
+
+def _saved_view(name: str, state: Mapping[str, Any]) -> str:
+    """An experiment tag value the runs table opens as a saved view (MLflow 3.17's envelope: ``name``,
+    ``createdAt`` and the view state as a JSON string). The state holds UI fields (``selectedColumns``)
+    and search facets (``searchFilter``, ``orderByKey``, ``orderByAsc``); the UI writes the facets into
+    the URL when it opens the view."""
+    return json.dumps({"name": name, "createdAt": 0, "updatedAt": 0, "state": json.dumps(dict(state))})
+
+
 EXPERIMENT_TAGS = {
     "mlflow.experimentKind": "custom_model_development",
-    f"mlflow.sharedViewState.{RUNS_TABLE_VIEW}": json.dumps({
-        "name": "Paper metrics", "createdAt": 0, "updatedAt": 0,
-        "state": json.dumps({"selectedColumns": RUNS_TABLE_COLUMNS})}),
+    f"mlflow.sharedViewState.{RESULTS_VIEW}": _saved_view("Results table", {
+        "selectedColumns": RUNS_TABLE_COLUMNS, "searchFilter": RESULTS_FILTER,
+        "orderByKey": "tags.`mlflow.runName`", "orderByAsc": True}),
+    f"mlflow.sharedViewState.{METRICS_VIEW}": _saved_view("All runs, paper metrics", {
+        "selectedColumns": RUNS_TABLE_COLUMNS}),
 }
-"""Marks an experiment as model development, and stores the runs-table view with the paper's metrics as
-a saved view (the UI's "Views" menu; MLflow 3.17's envelope)."""
+"""Marks an experiment as model development, and stores two runs-table views (the UI's "Views" menu):
+``results``, the rows of ``results/table.json`` by run name with the paper's metrics as columns, and
+``metrics``, every run with those columns."""
 
 
 SERVER_CHECK_TIMEOUT_S = 5.0
@@ -132,12 +153,13 @@ def check_tracking_server(uri: str, timeout_s: float = SERVER_CHECK_TIMEOUT_S) -
         "start it, or run without tracking: tracking.enabled=false")
 
 
-def runs_table_url(base: str, experiment_id: str) -> str:
-    """The MLflow UI's runs table of an experiment with the paper's metrics as columns. MLflow 3.17's UI
-    picks its GenAI or model-training view by a switch of its own (``workflowType``), not by the
-    experiment's kind, so the URL names it."""
-    return (f"{base.rstrip('/')}/#/experiments/{experiment_id}"
-            f"?viewStateShareKey={RUNS_TABLE_VIEW}&workflowType=machine_learning")
+def runs_table_url(base: str, experiment_id: str, view: str = RESULTS_VIEW) -> str:
+    """The MLflow UI's runs table of an experiment, opened on the saved view ``view`` (:data:`EXPERIMENT_TAGS`).
+    MLflow 3.17's UI picks its GenAI or model-training view by a switch of its own (``workflowType``), not
+    by the experiment's kind, so the URL names it. The path ends in ``/runs``: the UI redirects
+    ``/experiments/<id>`` there and drops ``viewStateShareKey`` on the way."""
+    return (f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs"
+            f"?viewStateShareKey={view}&workflowType=machine_learning")
 
 
 def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
@@ -152,11 +174,47 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
     return flat
 
 
+NAMED_METHODS = {("srmpc_track_rollout", "margin_1m"): "srmpc_recommended"}
+"""Methods that the results table names by a role rather than by their settings: (method, planner setting)
+-> name. ``srmpc_recommended`` is SRMPC tracking the policy's rollout with the 1 m safety region
+(conf/experiment/confirmation/srmpc_recommended.yaml; the table's row of that name)."""
+
+
+@functools.lru_cache(maxsize=1)
+def _planner_defaults() -> dict[str, Any]:
+    from srmpc.config.schema import PlannerConfig
+
+    return {f.name: f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            for f in dataclasses.fields(PlannerConfig)}
+
+
+def planner_setting(planner: Mapping[str, Any] | None) -> str:
+    """The planner setting of a composed config's ``planner`` section, named by what it changes from the
+    planner's defaults (srmpc/config/schema.py ``PlannerConfig``): ``default``; ``margin_<m>m`` for the
+    longitudinal safety margin (``margin_1m``, ``margin_4m``); ``speed_weight_<w>`` for a changed speed
+    weight of the tracking cost (``state_weights[3]``); ``<key>_<value>`` for anything else; joined by ``_``
+    (``margin_1m_speed_weight_2``). Read from the values, never from a config file's or folder's name."""
+    defaults, parts = _planner_defaults(), []
+    for key, value in (planner or {}).items():
+        default = defaults.get(key, value)
+        if value == default or (isinstance(value, list | tuple) and list(value) == list(default)):
+            continue
+        if key == "safety_margin_longitudinal_m":
+            parts.insert(0, f"margin_{float(value):g}m")
+        elif key == "state_weights" and len(value) == len(default) and all(
+                a == b for i, (a, b) in enumerate(zip(value, default, strict=True)) if i != 3):
+            parts.append(f"speed_weight_{float(value[3]):g}")
+        else:
+            parts.append(f"{key}_{value}")
+    return "_".join(parts) or "default"
+
+
 def run_tags(params: Mapping[str, Any]) -> dict[str, str]:
     """``stage``, ``method``, ``traffic`` and ``seed`` of a run, from its composed config, for filtering
     and grouping in the UI. method: the agent (training) or the controller, SRMPC with its variant
     unless that is the paper's (``srmpc_best_of_two``), a policy controller given another agent's policy file
-    by the agent (``evaluation.policy_path=results/training/ppo_sb3/policy.pt``: ``ppo_sb3``)."""
+    by the agent (``evaluation.policy_path=results/training/ppo_sb3/policy.pt``: ``ppo_sb3``), and a
+    method with a planner setting of :data:`NAMED_METHODS` by its name there (``srmpc_recommended``)."""
     def plain(value: Any) -> Any:
         return getattr(value, "value", value)  # an Enum of the structured config -> its value
 
@@ -174,6 +232,9 @@ def run_tags(params: Mapping[str, Any]) -> dict[str, str]:
         if method in ("ppo", "ppo_lsi") and policy_path and Path(policy_path).name == "policy.pt":
             agent = Path(policy_path).parent  # results/training/<agent>/policy.pt or .../<agent>/seed_<n>/policy.pt
             method = (agent.parent if agent.name.startswith("seed_") else agent).name
+        planner = params.get("planner")
+        if isinstance(planner, Mapping):
+            method = NAMED_METHODS.get((method, planner_setting(planner)), method)
     tags = {"stage": stage, "method": method, "traffic": plain(scenario.get("traffic")), "seed": seed}
     return {key: str(value) for key, value in tags.items() if value not in (None, "")}
 

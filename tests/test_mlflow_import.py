@@ -77,12 +77,13 @@ def test_a_fresh_store_gets_every_result_once(clone, store):
     history = client.get_metric_history(training.info.run_id, "episode/return")
     assert [m.step for m in history] == [int(float(row["frames"])) for row in rows]  # the curve over env steps
     assert [m.value for m in history] == pytest.approx([float(row["episode/return"]) for row in rows])
-    assert training.data.tags["method"] == "ppo" and training.data.tags["variant"] == "ppo"
+    assert training.data.tags["method"] == "ppo" and training.data.tags["variant"] == "default"  # agent=ppo as is
     assert training.data.tags["mlflow.parentRunId"] == parent
     assert "policy.pt" in {a.path for a in client.list_artifacts(training.info.run_id)}
 
     again = import_results(client, experiment_id, None, lock_path, clone)  # a second make reproduce
-    assert again == {"imported": 0, "skipped": 2, "superseded": 0, "deleted": 0}
+    assert {k: again[k] for k in ("imported", "skipped", "superseded", "deleted")} == {
+        "imported": 0, "skipped": 2, "superseded": 0, "deleted": 0}
     assert sum(len(v) for v in _runs(client, experiment_id).values()) == 2
 
 
@@ -103,7 +104,8 @@ def test_a_rerun_stage_supersedes_its_runs_and_a_dead_import_is_redone(clone, st
                              tags={"output_dir": EVALUATION, IMPORT_TAG: stage_md5(entry)}).info.run_id
 
     counts = import_results(client, experiment_id, parent, lock_path, clone)
-    assert counts == {"imported": 1, "skipped": 1, "superseded": 2, "deleted": 1}
+    assert {k: counts[k] for k in ("imported", "skipped", "superseded", "deleted")} == {
+        "imported": 1, "skipped": 1, "superseded": 2, "deleted": 1}
     runs = {r.info.run_id: r for r in _runs(client, experiment_id)[EVALUATION]}
     (new,) = [r for r in runs.values() if r.data.tags.get("current") == "true"]
     assert new.data.tags[IMPORT_TAG] == stage_md5(entry) and new.info.status == "FINISHED"
@@ -114,19 +116,64 @@ def test_a_rerun_stage_supersedes_its_runs_and_a_dead_import_is_redone(clone, st
     assert import_results(client, experiment_id, parent, lock_path, clone)["imported"] == 0
 
 
-@pytest.mark.parametrize("stage, margin, planner, variant", [
-    ("evaluate_tradeoff@srmpc_track_rollout-margin_2m-dense", 2.0, "margin_2m", "track_rollout+margin_2m"),
-    ("evaluate_planner_variant@short_margin-ltv_mpc-light", 4.0, "short_margin", "short_margin"),
-    ("evaluate_confirmation@srmpc_recommended-light", 1.0, "margin_1m", "track_rollout+margin_1m"),
-    ("evaluate@srmpc-light", 8.0, "default", "paper"),
+@pytest.mark.parametrize("controller, variant, margin, weights, method, planner, tagged", [
+    ("srmpc", "track_rollout", 2.0, None, "srmpc_track_rollout", "margin_2m", "track_rollout+margin_2m"),
+    ("ltv_mpc", "paper", 4.0, None, "ltv_mpc", "margin_4m", "margin_4m"),
+    ("srmpc", "track_rollout", 1.0, None, "srmpc_recommended", "margin_1m", "track_rollout+margin_1m"),
+    ("srmpc", "track_rollout", 1.0, [0.0, 0.5, 20.0, 2.0], "srmpc_track_rollout", "margin_1m_speed_weight_2",
+     "track_rollout+margin_1m_speed_weight_2"),
+    ("srmpc", "paper", 8.0, None, "srmpc", "default", "paper"),
 ])
-def test_sweep_points_are_tagged_by_their_planner_setting(stage, margin, planner, variant):
-    """The runs table groups the trade-off sweep by method and planner setting (tags planner, margin_m)."""
-    from pipelines.mlflow_import import _variant
+def test_a_result_is_named_by_its_config_not_by_its_folder(controller, variant, margin, weights, method, planner,
+                                                            tagged):
+    """Method, planner setting and variant come from the composed config's values: the same config in any
+    folder, under any stage, gives the same run."""
+    from pipelines.mlflow_import import result_tags, run_name_of
+    from srmpc.tracking import run_tags
 
-    controller = "ltv_mpc" if "ltv_mpc" in stage else "srmpc"
-    config = {"evaluation": {"controller": controller},
-              "srmpc": {"variant": "track_rollout" if "track_rollout" in stage or "recommended" in stage else "paper"},
-              "planner": {"safety_margin_longitudinal_m": margin}}
-    tags = _variant(stage, config, "evaluation", "results/evaluation/x")
-    assert (tags["planner"], tags["margin_m"], tags["variant"]) == (planner, str(margin), variant)
+    config = {"stage": "evaluate", "scenario": {"traffic": "light"},
+              "evaluation": {"controller": controller, "simulator": "twin", "seed": 0},
+              "srmpc": {"variant": variant}, "planner": {"safety_margin_longitudinal_m": margin}}
+    if weights:
+        config["planner"]["state_weights"] = weights
+    tags = result_tags(config, "evaluation")
+    assert (run_tags(config)["method"], tags["planner"], tags["margin_m"], tags["variant"]) == (
+        method, planner, str(margin), tagged)
+    assert run_name_of("evaluation", config).startswith(f"{method}-")
+
+
+def test_every_row_of_the_results_table_has_its_run_under_the_tables_method(tmp_path, store):
+    """Each row of results/table.json: an imported run with that method and traffic tag and the row's J_c, and
+    exactly one run marked as the row (tag results_table, the runs table's "results" view), whose numbers are
+    the row's. The runs are named by their config.yaml, so the check holds whatever the folders are called."""
+    client, experiment_id, parent = store
+    lock = yaml.safe_load((ROOT / "dvc.lock").read_text())
+    evaluations = {stage for stage, entry in lock["stages"].items()
+                   if any(Path(out["path"]).name == "summary.json" for out in entry.get("outs") or [])}
+    lock["stages"] = {stage: lock["stages"][stage] for stage in evaluations}  # the trainings take long to log
+    (tmp_path / "dvc.lock").write_text(yaml.safe_dump(lock))
+    counts = import_results(client, experiment_id, parent, tmp_path / "dvc.lock", ROOT)
+    table = json.loads((ROOT / "results" / "table.json").read_text())
+    rows = {(traffic, method): row for traffic, methods in table.items() for method, row in methods.items()}
+    assert {"srmpc_recommended"} < {method for _, method in rows} and len(rows) >= 12
+    assert counts["table_rows"] == counts["table_rows_with_run"] == len(rows), counts
+
+    runs = [run for runs in _runs(client, experiment_id).values() for run in runs]
+    for (traffic, method), row in rows.items():
+        same = [r for r in runs if r.data.tags["method"] == method and r.data.tags["traffic"] == traffic]
+        assert any(r.data.metrics["mean_event_cost"] == row["mean_event_cost"] for r in same), (
+            f"{method} {traffic}: no run with the table's J_c {row['mean_event_cost']}: "
+            f"{[(r.info.run_name, r.data.metrics.get('mean_event_cost')) for r in same]}")
+        marked = [r for r in same if r.data.tags.get("results_table") == "true"]
+        assert len(marked) == 1, (method, traffic, [r.info.run_name for r in marked])
+        for key in ("episodes", "mean_event_cost", "cost_rate", "mean_return", "mean_n_steps", "mean_vx"):
+            assert marked[0].data.metrics[key] == pytest.approx(row[key], rel=1e-12), (method, traffic, key)
+    assert sum(r.data.tags.get("results_table") == "true" for r in runs) == len(rows)
+
+    table["light"].pop("ppo")  # the table drops a row: the next import unmarks its run
+    (tmp_path / "table.json").write_text(json.dumps(table))
+    again = import_results(client, experiment_id, parent, tmp_path / "dvc.lock", ROOT, tmp_path / "table.json")
+    assert again["imported"] == 0 and again["table_rows"] == again["table_rows_with_run"] == len(rows) - 1
+    marked = client.search_runs([experiment_id], filter_string='tags.results_table = "true"', max_results=1000)
+    assert len(marked) == len(rows) - 1 and ("light", "ppo") not in {
+        (r.data.tags["traffic"], r.data.tags["method"]) for r in marked}

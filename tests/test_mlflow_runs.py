@@ -44,6 +44,11 @@ def test_run_tags_name_method_traffic_and_seed():
     sb3["evaluation"]["policy_path"] = None
     assert run_tags(sb3)["method"] == "ppo"
     assert run_tags(_params(stage="train")) == {"stage": "train", "method": "ppo_lsi", "traffic": "light", "seed": "1"}
+    recommended = _params(variant="track_rollout")  # the results table's name for this setting
+    recommended["planner"] = {"safety_margin_longitudinal_m": 1.0}
+    assert run_tags(recommended)["method"] == "srmpc_recommended"
+    recommended["planner"]["safety_margin_longitudinal_m"] = 2.0
+    assert run_tags(recommended)["method"] == "srmpc_track_rollout"
 
 
 def test_new_and_existing_experiments_open_on_the_runs_table(store):
@@ -59,11 +64,16 @@ def test_new_and_existing_experiments_open_on_the_runs_table(store):
         pass
     assert client.get_experiment_by_name("old").tags[KIND] == "custom_model_development"
 
-    view = json.loads(client.get_experiment_by_name("old").tags["mlflow.sharedViewState.paper"])
-    assert view["name"] == "Paper metrics"
-    assert "metrics.`mean_event_cost`" in json.loads(view["state"])["selectedColumns"]
+    view = json.loads(client.get_experiment_by_name("old").tags["mlflow.sharedViewState.results"])
+    assert view["name"] == "Results table" and isinstance(view["createdAt"], int)  # MLflow 3.17's envelope
+    state = json.loads(view["state"])
+    assert {"metrics.`mean_event_cost`", "metrics.`mean_vx`", "tags.`method`", "tags.`traffic`"} <= set(
+        state["selectedColumns"])
+    assert state["searchFilter"] == 'tags.results_table = "true"'
     assert runs_table_url("http://h:5000/", "7") == (
-        "http://h:5000/#/experiments/7?viewStateShareKey=paper&workflowType=machine_learning")
+        "http://h:5000/#/experiments/7/runs?viewStateShareKey=results&workflowType=machine_learning")
+    assert "searchFilter" not in json.loads(json.loads(
+        client.get_experiment_by_name("old").tags["mlflow.sharedViewState.metrics"])["state"])
 
 
 def test_runs_nest_under_the_parent_named_in_the_environment(store, monkeypatch, tmp_path):

@@ -1,14 +1,15 @@
-"""In a real browser, the MLflow UI lists an SRMPC and an LTV-MPC run with their J_c (headless Chromium).
+"""In a real browser, the URL ``make ui`` prints opens on the results with their J_c and v_x (headless Chromium).
 
-Chromium is driven over its DevTools protocol (``tests/chromium_devtools.py``): open the
-runs table, choose the metric columns (MLflow 3.17 shows none by default), reload, screenshot, read the DOM.
+Chromium is driven over its DevTools protocol (``tests/chromium_devtools.py``): open the URL, wait, screenshot,
+read the DOM; nothing is clicked and no browser state is set, so the page shows what a new user's browser shows.
 Needs Chromium from Debian's packages (``apt-get install chromium``); skipped, saying so, without it.
-The screenshot goes to ``$SRMPC_UI_SCREENSHOT`` if set, else into the test's temporary directory.
+Screenshots go to ``$SRMPC_UI_SCREENSHOT_DIR`` if set, else into the test's temporary directory.
 """
 
 import asyncio
 import base64
 import json
+import math
 import os
 import re
 import subprocess
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from srmpc.tracking import PARENT_RUN_ENV, RUNS_TABLE_COLUMNS, runs_table_url, tracked_run
+from srmpc.tracking import METRICS_VIEW, PARENT_RUN_ENV, RESULTS_FILTER, runs_table_url, tracked_run
 from tests.chromium_devtools import CHROMIUM, chromium_page
 from tests.mlflow_server import serve_mlflow
 
@@ -30,7 +31,7 @@ J_C = "mean_event_cost"
 @pytest.fixture
 def mlflow_ui(tmp_path, monkeypatch):
     """``mlflow server`` on a free port over a temporary SQLite store holding the two runs; yields the
-    runs-table URL (MLflow 3.17 opens experiments in its GenAI view unless told ``workflowType``)."""
+    runs-table URL on the ``metrics`` view (every run; no run is a row of the results table here)."""
     monkeypatch.delenv(PARENT_RUN_ENV, raising=False)
     uri, artifacts = f"sqlite:///{tmp_path / 'mlflow.db'}", str(tmp_path / "mlruns")
     for name, (controller, j_c) in RUNS.items():
@@ -43,45 +44,15 @@ def mlflow_ui(tmp_path, monkeypatch):
     experiment_id = mlflow.MlflowClient(uri).get_experiment_by_name("srmpc").experiment_id
     mlflow.set_tracking_uri(None)
     with serve_mlflow(uri, artifacts, tmp_path / "server.log") as base:
-        yield runs_table_url(base, experiment_id)
-
-
-RUNS_TABLE_STATE_JS = """(() => {
-  // The runs table keeps its state (selectedColumns among it) as JSON in localStorage; MLflow 3.17 shows
-  // no metric column until one is chosen, so choose the paper's view here, as Columns -> Metrics would.
-  // EXPANDED: the parent runs to show expanded ({} for none; imported runs are a parent's children).
-  let changed = 0;
-  for (let i = 0; i < localStorage.length; i++) {
-    const key = localStorage.key(i);
-    let state;
-    try { state = JSON.parse(localStorage.getItem(key)); } catch (e) { continue; }
-    if (state && Array.isArray(state.selectedColumns)) {
-      state.selectedColumns = COLUMNS;
-      Object.assign(state, EXPANDED);
-      localStorage.setItem(key, JSON.stringify(state));
-      changed++;
-    }
-  }
-  return changed;
-})()"""
-
-
-def runs_table_state(parent: str | None = None) -> str:
-    """``RUNS_TABLE_STATE_JS`` selecting the paper's metric columns (and expanding ``parent``)."""
-    columns = json.dumps([c for c in RUNS_TABLE_COLUMNS if c.startswith("metrics.")])
-    expanded = json.dumps({"runsExpanded": {parent: True}} if parent else {})
-    return RUNS_TABLE_STATE_JS.replace("COLUMNS", columns).replace("EXPANDED", expanded)
+        yield runs_table_url(base, experiment_id, METRICS_VIEW)
 
 
 async def _browse(url: str, profile: Path, screenshot: Path, deadline_s: float) -> str:
-    """Open ``url`` in headless Chromium over the DevTools protocol, select the paper's columns, reload,
-    save a screenshot; returns the page's DOM."""
+    """Open ``url`` in headless Chromium over the DevTools protocol (a fresh profile, nothing clicked), wait
+    for the runs and the J_c column, save a screenshot; returns the page's DOM."""
     async with chromium_page(profile, deadline_s=deadline_s) as page:
         names = " && ".join(f"document.body.innerText.includes({json.dumps(n)})" for n in RUNS)
         await page.call("Page.navigate", url=url)
-        await page.wait_for(f"document.body && {names}", "the runs table")
-        assert await page.evaluate(runs_table_state()) >= 1, "no runs-table state"
-        await page.call("Page.reload")
         await page.wait_for(f"document.body && {names} && document.body.innerText.includes({json.dumps(J_C)})",
                             "the J_c column")
         await asyncio.sleep(3)  # let the grid settle
@@ -94,7 +65,7 @@ async def _browse(url: str, profile: Path, screenshot: Path, deadline_s: float) 
 def test_runs_table_shows_srmpc_and_ltv_mpc_with_their_j_c(mlflow_ui, tmp_path):
     if CHROMIUM is None:
         pytest.skip("Chromium is not installed; install it from Debian's packages: apt-get install chromium")
-    screenshot = Path(os.environ.get("SRMPC_UI_SCREENSHOT", tmp_path / "mlflow_runs_table.png"))
+    screenshot = Path(os.environ.get("SRMPC_UI_SCREENSHOT_DIR", tmp_path)) / "mlflow_runs_table.png"
     screenshot.parent.mkdir(parents=True, exist_ok=True)
     dom = asyncio.run(_browse(mlflow_ui, tmp_path / "chromium", screenshot, deadline_s=900))
     assert screenshot.stat().st_size > 20_000, "screenshot missing or blank"
@@ -133,8 +104,26 @@ def _mlflow_parent_run(*args: str, uri: str, artifacts: str) -> str:
 
 
 def _ui_number(value: float) -> str:
-    """How the runs table writes a metric (JavaScript's number to string, for these plain values)."""
-    return str(int(value)) if float(value).is_integer() else repr(float(value))
+    """How the runs table writes a metric: MLflow's ``Utils.formatMetric`` (3 decimals below 10, 2 below 100,
+    1 above; an exponent below 0.001), then JavaScript's number to string, for these plain values."""
+    value = float(value)
+    if value == 0:
+        return "0"
+    if abs(value) < 0.001:
+        mantissa, exponent = f"{value:.3e}".split("e")
+        return f"{mantissa}e{int(exponent):+d}"
+    digits = 3 if abs(value) < 10 else 2 if abs(value) < 100 else 1
+    rounded = math.floor(value * 10**digits + 0.5) / 10**digits  # Math.round: half up
+    return str(int(rounded)) if rounded.is_integer() else repr(rounded)
+
+
+def _cells(dom: str, name: str, column: str) -> list[str]:
+    """The text of ``column``'s cells in the row of run ``name`` (ag-grid: the pinned name cell and the
+    metric cells share the row's row-index)."""
+    row = re.search(rf'row-index="(\d+)"(?:(?!row-index=).)*?>{re.escape(name)}<', dom, re.S)
+    assert row, f"no row for {name}"
+    cells = "".join(re.findall(rf'row-index="{row.group(1)}"(?:(?!row-index=).)*', dom, re.S))
+    return re.findall(rf'col-id="{re.escape(column)}"[^>]*>(?:<[^>]*>)*([^<]*)<', cells)
 
 
 @pytest.fixture
@@ -162,43 +151,44 @@ def fresh_clone_ui(tmp_path):
 
 
 @pytest.mark.timeout(3600)
-def test_fresh_clone_runs_table_shows_the_tables_methods_with_their_j_c_and_a_training_chart(fresh_clone_ui, tmp_path):
+def test_the_url_make_ui_prints_shows_the_tables_rows_with_j_c_and_v_x_and_a_training_chart(fresh_clone_ui, tmp_path):
+    """On a store like a fresh clone's after ``make reproduce``, the URL of ``mlflow_parent_run url`` (what
+    ``make ui`` prints) shows, without a click, one row per method and traffic of results/table.json, flat (not
+    under the collapsed parent), with the table's J_c and v_x; and a training's metrics page draws its curve."""
     if CHROMIUM is None:
         pytest.skip("Chromium is not installed; install it from Debian's packages: apt-get install chromium")
     base, experiment_id, parent, client = fresh_clone_ui
-    from pipelines.reporting import CONFIRMATION, EVALUATION  # the table's rows: the twin's runs, the confirmation's
-
     table = json.loads((ROOT / "results" / "table.json").read_text())
-    rows = {}  # run name -> the J_c the paper's table gives its method and traffic
+    rows = {}  # run name -> (J_c, v_x) of the table's row it is
     for traffic, methods in table.items():
         for method, summary in methods.items():
-            recommended = method == "srmpc_recommended"  # the confirmation's run of srmpc=track_rollout
-            directory = f"{CONFIRMATION if recommended else EVALUATION}/{method}_{traffic}"
-            runs = client.search_runs([experiment_id], filter_string=f"tags.output_dir = '{directory}'")
-            assert len(runs) == 1, f"{directory}: {len(runs)} runs"
-            tagged = "srmpc_track_rollout" if recommended else method
-            assert runs[0].data.tags["method"] == tagged and runs[0].data.tags["traffic"] == traffic
+            runs = client.search_runs([experiment_id], filter_string=f"tags.method = '{method}' AND "
+                                      f"tags.traffic = '{traffic}' AND {RESULTS_FILTER}")
+            assert len(runs) == 1, f"{method} {traffic}: {len(runs)} runs marked as the table's row"
+            assert runs[0].data.metrics[J_C] == summary[J_C]
             assert runs[0].data.tags["mlflow.parentRunId"] == parent
-            rows[runs[0].info.run_name] = summary[J_C]
-    assert len(rows) >= 6, rows
+            rows[runs[0].info.run_name] = (summary[J_C], summary["mean_vx"])
+    assert len(rows) == sum(len(methods) for methods in table.values()) >= 12, rows
     (training,) = client.search_runs([experiment_id],
                                      filter_string="tags.output_dir = 'results/training/ppo_lsi/seed_0'")
+    url = _mlflow_parent_run("url", "--base", base, uri=str(client.tracking_uri),
+                             artifacts=str(tmp_path / "mlruns")).splitlines()[-1]
+    assert url.startswith(f"{base}/#/experiments/{experiment_id}/runs?viewStateShareKey=results&"), url
     shots = Path(os.environ.get("SRMPC_UI_SCREENSHOT_DIR", tmp_path))
     shots.mkdir(parents=True, exist_ok=True)
 
     async def browse():
-        async with chromium_page(tmp_path / "chromium", deadline_s=900, window="1800,2600") as page:
+        async with chromium_page(tmp_path / "chromium", deadline_s=900, window="1800,1000") as page:
             names = " && ".join(f"document.body.innerText.includes({json.dumps(n)})" for n in rows)
-            await page.call("Page.navigate", url=runs_table_url(base, experiment_id))
-            await page.wait_for("document.body && document.body.innerText.includes('make reproduce')", "the parent")
-            assert await page.evaluate(runs_table_state(parent)) >= 1, "no runs-table state"
-            await page.call("Page.reload")
-            await page.wait_for(f"document.body && {names} && document.body.innerText.includes({json.dumps(J_C)})",
-                                "the imported runs and the J_c column")
+            await page.call("Page.navigate", url=url)
+            await page.wait_for(f"document.body && {names} && document.body.innerText.includes({json.dumps(J_C)})"
+                                " && document.body.innerText.includes('mean_vx')",
+                                "the table's runs with the J_c and v_x columns")
             await asyncio.sleep(3)  # let the grid settle
             shot = await page.call("Page.captureScreenshot", format="png")
-            (shots / "mlflow_fresh_clone_runs.png").write_bytes(base64.b64decode(shot["data"]))
+            (shots / "mlflow_make_ui_url.png").write_bytes(base64.b64decode(shot["data"]))
             dom = await page.evaluate("document.documentElement.outerHTML")
+            text = await page.evaluate("document.body.innerText")
 
             await page.call("Page.navigate", url=f"{base}/#/experiments/{experiment_id}/runs/"
                                                  f"{training.info.run_id}/model-metrics")
@@ -207,15 +197,14 @@ def test_fresh_clone_runs_table_shows_the_tables_methods_with_their_j_c_and_a_tr
             await asyncio.sleep(3)
             shot = await page.call("Page.captureScreenshot", format="png")
             (shots / "mlflow_fresh_clone_training.png").write_bytes(base64.b64decode(shot["data"]))
-            return dom, await page.evaluate(CHARTS_JS)
+            return dom, text, await page.evaluate(CHARTS_JS)
 
-    dom, charts = asyncio.run(browse())
-    for name, j_c in rows.items():  # each run's row (ag-grid's row-index, shared by its cells) holds its J_c
-        row = re.search(rf'row-index="(\d+)"(?:(?!row-index=).)*?>{re.escape(name)}<', dom, re.S)
-        assert row, f"no row for {name}"
-        cells = "".join(re.findall(rf'row-index="{row.group(1)}"(?:(?!row-index=).)*', dom, re.S))
-        shown = re.findall(rf'col-id="metrics.`{J_C}`"[^>]*>(?:<[^>]*>)*([^<]*)<', cells)
-        assert shown == [_ui_number(j_c)], f"{name}: J_c shown {shown}, the table's {j_c}"
+    dom, text, charts = asyncio.run(browse())
+    assert "Model training" in dom  # the runs table, not the GenAI traces overview
+    assert "make reproduce" not in text, "the parent run is listed: the table's runs are not shown flat"
+    for name, (j_c, v_x) in rows.items():
+        assert _cells(dom, name, f"metrics.`{J_C}`") == [_ui_number(j_c)], f"{name}: J_c, the table's {j_c}"
+        assert _cells(dom, name, "metrics.`mean_vx`") == [_ui_number(v_x)], f"{name}: v_x, the table's {v_x}"
 
     chart = [c for c in charts if c["card"].endswith(f"{training.info.run_name} (episode/return)")]
     assert len(chart) == 1, charts
