@@ -9,7 +9,6 @@ Screenshots go to ``$SRMPC_UI_SCREENSHOT_DIR`` if set, else into the test's temp
 import asyncio
 import base64
 import json
-import math
 import os
 import re
 import subprocess
@@ -104,17 +103,8 @@ def _mlflow_parent_run(*args: str, uri: str, artifacts: str) -> str:
 
 
 def _ui_number(value: float) -> str:
-    """How the runs table writes a metric: MLflow's ``Utils.formatMetric`` (3 decimals below 10, 2 below 100,
-    1 above; an exponent below 0.001), then JavaScript's number to string, for these plain values."""
-    value = float(value)
-    if value == 0:
-        return "0"
-    if abs(value) < 0.001:
-        mantissa, exponent = f"{value:.3e}".split("e")
-        return f"{mantissa}e{int(exponent):+d}"
-    digits = 3 if abs(value) < 10 else 2 if abs(value) < 100 else 1
-    rounded = math.floor(value * 10**digits + 0.5) / 10**digits  # Math.round: half up
-    return str(int(rounded)) if rounded.is_integer() else repr(rounded)
+    """How the runs table writes a metric: in full (JavaScript's number to string, for these plain values)."""
+    return str(int(value)) if float(value).is_integer() else repr(float(value))
 
 
 def _cells(dom: str, name: str, column: str) -> list[str]:
