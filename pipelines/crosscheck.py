@@ -2,10 +2,10 @@
 
     python -m pipelines.crosscheck
 
-For each method (PPO-L-SI, LTV-MPC, SRMPC) and traffic level, compares
-- ``results/evaluation/twin/<method>_<traffic>``: 1000 episodes from the twin's own resets (the table's
-  runs), and
-- ``results/evaluation/highway_env_resets/<method>_<traffic>``: 1000 episodes that start from
+For each method (PPO-L-SI, LTV-MPC, SRMPC) and traffic level, compares (each folder found by its
+``config.yaml``: method, traffic, the default planner settings)
+- under ``results/evaluation/twin/``: 1000 episodes from the twin's own resets (the table's runs), and
+- under ``results/evaluation/highway_env_resets/``: 1000 episodes that start from
   highway-env's own reset for the same seed, copied into the twin (``evaluation.simulator=
   twin_highway_env_resets``), so the start states are highway-env's and every step equals highway-env's.
 
@@ -25,7 +25,7 @@ from pathlib import Path
 import pandas as pd
 from scipy.stats import fisher_exact, norm
 
-from pipelines.reporting import write_outputs
+from pipelines.reporting import by_method, write_outputs
 from srmpc.confidence_intervals import wilson_interval
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,12 +55,13 @@ def source_metrics(directory: Path) -> dict:
 
 def main() -> None:
     result: dict = {}
+    found = {source: by_method(root) for source, root in SOURCES.items()}
     for traffic in ("light", "dense"):
         for method in METHODS:
-            directories = {source: root / f"{method}_{traffic}" for source, root in SOURCES.items()}
-            missing = [str(d) for d in directories.values() if not (d / "episodes.csv").exists()]
+            missing = [str(SOURCES[source]) for source in SOURCES if (method, traffic) not in found[source]]
             if missing:
-                raise SystemExit(f"{missing[0]}/episodes.csv: missing (run its DVC evaluation stage)")
+                raise SystemExit(f"{missing[0]}: no evaluation of {method} in {traffic} traffic (run its DVC stage)")
+            directories = {source: found[source][(method, traffic)] for source in SOURCES}
             metrics = {source: source_metrics(d) for source, d in directories.items()}
             a, b = metrics["twin"], metrics["highway_env_resets"]
             table = [[a["events"], a["episodes"] - a["events"]], [b["events"], b["episodes"] - b["events"]]]

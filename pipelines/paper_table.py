@@ -1,6 +1,7 @@
 """DVC stage: the paper's evaluation table from the episodes, with 95% confidence intervals.
 
-Reads results/evaluation/twin/<controller>_<traffic>/{episodes.csv,summary.json} and writes
+Reads the table's evaluations under results/evaluation/twin/ (each row's method and traffic from its
+folder's config.yaml) and writes
 - results/table.json: ``[traffic][method]`` with mean_return, mean_return_per_step, mean_event_cost,
   cost_rate, mean_n_steps, mean_vx, episodes, a ``<metric>_ci95`` [low, high] beside each metric
   (Wilson for J_c, bootstrap over episodes for the rest; srmpc.confidence_intervals) and the planner's
@@ -22,7 +23,9 @@ from pipelines.reporting import (
     METHODS,
     PAIRED_AGAINST,
     PAPER,
+    by_method,
     ci,
+    evaluations,
     method_row,
     paper_row,
     row_with_intervals,
@@ -143,11 +146,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
     args = parser.parse_args()
     table, lines = {}, []
+    found = by_method(EVALUATION)  # (method, traffic) -> folder, from each folder's config.yaml
+    confirmation = evaluations(CONFIRMATION)
     for traffic in ("light", "dense"):
         rows, frames = {}, {}
         for method in METHODS:
-            directory = EVALUATION / f"{method}_{traffic}"
-            if (directory / "summary.json").exists():
+            if (directory := found.get((method, traffic))) is not None:
                 rows[method], frames[method] = method_row(directory, args.resamples, args.seed)
         if "srmpc" in rows:
             rows["srmpc"]["paired_differences"] = {
@@ -157,8 +161,9 @@ def main() -> None:
         if "ppo_sb3" in rows and "ppo" in rows:  # the two PPOs on the same episodes
             rows["ppo_sb3"]["paired_differences"] = {
                 "ppo": paired_differences(frames["ppo_sb3"], frames["ppo"], args.resamples, args.seed)}
-        recommended = CONFIRMATION / f"srmpc_recommended_{traffic}"
-        if (recommended / "summary.json").exists():  # ours, beyond the paper: on fresh seeds (not paired)
+        recommended = next((d for d, x in confirmation if x["traffic"] == traffic and x["method"].startswith("srmpc")),
+                           None)  # the confirmation's SRMPC
+        if recommended is not None:  # ours, beyond the paper: on fresh seeds (not paired)
             rows["srmpc_recommended"], _ = method_row(recommended, args.resamples, args.seed)
         table[traffic] = rows
         lines += [f"### {traffic} traffic", "",

@@ -3,6 +3,8 @@ bootstrap settings, and how a report is written.
 
 - :data:`METHODS`, :data:`PAIRED_AGAINST`: the table's rows (their names) and what SRMPC is paired against;
 - :data:`EVALUATION`, :data:`CONFIRMATION`: where their episodes live;
+- :func:`evaluations`, :func:`experiment_of`: which experiment each evaluation folder holds, read from its
+  ``config.yaml`` (controller, SRMPC variant, planner settings, traffic, seed), never from its name;
 - :data:`PAPER`: the paper's Table "Evaluation results";
 - :func:`method_row`, :func:`row_with_intervals`, :func:`paper_row`, :func:`ci`: a method's row, read and printed;
 - :func:`write_outputs`: each report file written atomically.
@@ -20,8 +22,10 @@ import json
 from pathlib import Path
 
 import pandas as pd
+import yaml
 
 from srmpc.confidence_intervals import table_metrics_with_intervals
+from srmpc.config.schema import PlannerConfig
 from srmpc.output_folder import atomic_write_text
 
 EVALUATION = Path("results/evaluation/twin")
@@ -57,6 +61,66 @@ def row_with_intervals(name: str, r: dict) -> str:
 def paper_row(name: str, values: tuple) -> str:
     j_r, per_step, j_c, rho, steps, vx = values
     return f"| {name} | {j_r:.0f} ({per_step:.1f}) | {j_c:.3f} | {rho:.4f} | {steps:.0f} | {vx:.2f} |"
+
+
+def read_config(directory: Path) -> dict:
+    """The composed config an evaluation folder's episodes belong to (its ``config.yaml``)."""
+    return yaml.safe_load((directory / "config.yaml").read_text())
+
+
+def method_of(config: dict) -> str:
+    """The method a config evaluates: ``ltv_mpc``, ``srmpc`` or ``srmpc_<variant>``; a policy's: its agent, the
+    directory of its ``policy_path`` (``results/training/ppo_sb3/policy.pt``: ``ppo_sb3``) when one is set."""
+    controller = config["evaluation"]["controller"]
+    if controller in ("ppo", "ppo_lsi") and config["evaluation"].get("policy_path"):
+        return Path(config["evaluation"]["policy_path"]).parent.name
+    if controller != "srmpc":
+        return controller
+    variant = config["srmpc"].get("variant", "paper")
+    return "srmpc" if variant == "paper" else f"srmpc_{variant}"
+
+
+def settings_of(config: dict) -> dict:
+    """The planner settings a point is told by: margin [m] and the speed (and x) weight of state_weights."""
+    planner = config["planner"]
+    return {"safety_margin_longitudinal_m": float(planner["safety_margin_longitudinal_m"]),
+            "speed_weight": float(planner["state_weights"][3]),
+            "x_weight": float(planner["state_weights"][0])}
+
+
+DEFAULT_SETTINGS = settings_of({"planner": vars(PlannerConfig())})
+"""The planner settings of conf/planner/ltv_mpc.yaml (the paper's LTV-MPC: 8 m, speed weight 0.5)."""
+
+
+def experiment_of(config: dict) -> dict:
+    """What an evaluation folder holds: ``method``, ``traffic``, ``seed`` (episode i from seed + i), ``simulator``
+    and the planner ``settings``, with ``default_planner`` when those are conf/planner/ltv_mpc.yaml's."""
+    settings = settings_of(config)
+    return {"method": method_of(config), "traffic": config["scenario"]["traffic"],
+            "seed": int(config["evaluation"].get("seed", 0)),
+            "simulator": config["evaluation"].get("simulator", "twin"), "settings": settings,
+            "default_planner": settings == DEFAULT_SETTINGS}
+
+
+def evaluations(*roots: Path) -> list[tuple[Path, dict]]:
+    """Every finished evaluation folder (one with a ``summary.json``) under ``roots``, sorted, with
+    :func:`experiment_of` its ``config.yaml``."""
+    directories = sorted(p.parent for root in roots for p in root.glob("*/summary.json"))
+    return [(directory, experiment_of(read_config(directory))) for directory in directories]
+
+
+def by_method(*roots: Path) -> dict[tuple[str, str], Path]:
+    """The evaluations at the default planner settings under ``roots``, keyed by (method, traffic); two folders
+    of one key are an error (which is the table's row would be a guess)."""
+    found: dict[tuple[str, str], Path] = {}
+    for directory, experiment in evaluations(*roots):
+        if experiment["default_planner"]:
+            key = (experiment["method"], experiment["traffic"])
+            if key in found:
+                raise SystemExit(f"{directory} and {found[key]}: both hold {key[0]} in {key[1]} traffic "
+                                 "at the default planner settings")
+            found[key] = directory
+    return found
 
 
 def method_row(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame]:

@@ -1,7 +1,8 @@
 """DVC stage: SRMPC's variants beside the paper's SRMPC and LTV-MPC at the same planner settings.
 
-Reads results/evaluation/twin/{srmpc,srmpc_<variant>,ltv_mpc,ppo_lsi}_<traffic>/ and, for planner settings
-that differ from conf/planner/ltv_mpc.yaml (short_margin), SRMPC and LTV-MPC both with them; writes
+Reads the table's evaluations (results/evaluation/twin/: SRMPC, its variants, LTV-MPC and PPO-L-SI at
+conf/planner/ltv_mpc.yaml) and, at a 4 m safety margin (planner=margin_4m), SRMPC and LTV-MPC from the
+trade-off (results/evaluation/tradeoff/), each picked by what its folder's config.yaml says it is; writes
 - results/ablation.json: ``[traffic][variant]`` with the keys of table.json (metrics, ``_ci95`` intervals,
   ``outcomes``), plus ``meets_target`` and, for each SRMPC variant, ``paired_differences`` against
   the paper's SRMPC (same seeds);
@@ -17,21 +18,34 @@ import argparse
 import json
 from pathlib import Path
 
-from pipelines.reporting import EVALUATION, method_row, row_with_intervals, write_outputs
+from pipelines.reporting import DEFAULT_SETTINGS, EVALUATION, evaluations, method_row, row_with_intervals, write_outputs
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 
+TRADEOFF = Path("results/evaluation/tradeoff")
 VARIANTS = {
-    "ltv_mpc": ("ltv_mpc", "LTV-MPC (same planner config)"),
-    "ppo_lsi": ("ppo_lsi", "PPO-L-SI (the policy alone)"),
-    "paper": ("srmpc", "SRMPC, paper (Algorithm 1)"),
-    "best_of_two": ("srmpc_best_of_two", "(a) best of two references"),
-    "rollout_prediction": ("srmpc_rollout_prediction", "(b) rollout's IDM prediction"),
-    "sqp": ("srmpc_sqp", "(c) 2 SQP re-linearizations"),
-    "track_rollout": ("srmpc_track_rollout", "(d) QP tracks the rollout"),
-    "ltv_mpc_short_margin": ("ltv_mpc_short_margin", "LTV-MPC, planner=short_margin"),
-    "short_margin": ("srmpc_short_margin", "(e) SRMPC, planner=short_margin"),
+    "ltv_mpc": (("ltv_mpc", 8.0), "LTV-MPC (same planner config)"),
+    "ppo_lsi": (("ppo_lsi", 8.0), "PPO-L-SI (the policy alone)"),
+    "paper": (("srmpc", 8.0), "SRMPC, paper (Algorithm 1)"),
+    "best_of_two": (("srmpc_best_of_two", 8.0), "(a) best of two references"),
+    "rollout_prediction": (("srmpc_rollout_prediction", 8.0), "(b) rollout's IDM prediction"),
+    "sqp": (("srmpc_sqp", 8.0), "(c) 2 SQP re-linearizations"),
+    "track_rollout": (("srmpc_track_rollout", 8.0), "(d) QP tracks the rollout"),
+    "ltv_mpc_margin_4m": (("ltv_mpc", 4.0), "LTV-MPC, planner=margin_4m"),
+    "margin_4m": (("srmpc", 4.0), "(e) SRMPC, planner=margin_4m"),
 }
-"""Variant key -> (evaluation directory prefix, label)."""
+"""Row key -> ((method, safety margin [m]) of its evaluation's config.yaml, label); the other planner settings are
+conf/planner/ltv_mpc.yaml's, the seeds the table's."""
+
+
+def rows_by_experiment() -> dict[tuple[str, str, float], Path]:
+    """(method, traffic, margin [m]) -> the folder, over the table's seeds with the default speed weights."""
+    found = {}
+    for directory, x in evaluations(EVALUATION, TRADEOFF):
+        s = x["settings"]
+        weights_default = all(s[k] == DEFAULT_SETTINGS[k] for k in ("speed_weight", "x_weight"))
+        if x["seed"] == 0 and x["simulator"] == "twin" and weights_default:
+            found[(x["method"], x["traffic"], s["safety_margin_longitudinal_m"])] = directory
+    return found
 TARGET_EVENT_COST = {"light": 0.02, "dense": 0.05}
 TARGET_MIN_VX_MPS = 23.5
 
@@ -41,18 +55,18 @@ def main() -> None:
     parser.add_argument("--resamples", type=int, default=BOOTSTRAP_RESAMPLES, help="bootstrap resamples")
     parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
     args = parser.parse_args()
-    ablation, lines = {}, []
+    ablation, lines, found = {}, [], rows_by_experiment()
     for traffic in ("light", "dense"):
         rows, frames = {}, {}
-        for variant, (prefix, _) in VARIANTS.items():
-            directory = EVALUATION / f"{prefix}_{traffic}"
-            if not (directory / "summary.json").exists():
+        for variant, ((method, margin), _) in VARIANTS.items():
+            directory = found.get((method, traffic, margin))
+            if directory is None:
                 continue
             rows[variant], frames[variant] = method_row(directory, args.resamples, args.seed)
             rows[variant]["meets_target"] = bool(rows[variant]["mean_event_cost"] <= TARGET_EVENT_COST[traffic]
                                                  and rows[variant]["mean_vx"] >= TARGET_MIN_VX_MPS)
         for variant in rows:
-            if variant not in ("ltv_mpc", "ppo_lsi", "paper", "ltv_mpc_short_margin") and "paper" in frames:
+            if variant not in ("ltv_mpc", "ppo_lsi", "paper", "ltv_mpc_margin_4m") and "paper" in frames:
                 rows[variant]["paired_differences"] = {
                     "paper": paired_differences(frames[variant], frames["paper"], args.resamples, args.seed)}
         ablation[traffic] = rows

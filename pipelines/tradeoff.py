@@ -6,9 +6,10 @@ share at each grid point (the longitudinal safety margin [m], and the speed weig
 ``planner.state_weights`` where the sweep varies it); PPO-L-SI, PPO and lane keeping have no planner and
 are single points; the paper's three published rows are hollow markers.
 
-Reads every evaluation directory under ``results/evaluation/tradeoff/`` (each names its own settings in
-its ``config.yaml``) and the table's own evaluations (``results/evaluation/twin/``: the 8 m points and the
-single points). Writes:
+Reads every evaluation under ``results/evaluation/tradeoff/`` (DVC stage ``evaluate_tradeoff``) and, for the
+8 m points (conf/planner/ltv_mpc.yaml) and the single points, the table's own evaluations of the same seeds
+(``results/evaluation/twin/``, stages ``evaluate`` and ``evaluate_srmpc_variant``); each point's method,
+settings and traffic come from its folder's ``config.yaml``, never from its name. Writes:
 
 - ``results/tradeoff.json``: ``[traffic][method]`` is a list of points, each with its ``settings``,
   ``episodes``, ``mean_event_cost``, ``mean_vx``, ``mean_return`` (and the other keys of ``table.json``)
@@ -29,9 +30,17 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
-from pipelines.reporting import METHODS, PAPER, method_row, write_outputs
+from pipelines.reporting import (
+    METHODS,
+    PAPER,
+    evaluations,
+    method_of,
+    method_row,
+    read_config,
+    settings_of,
+    write_outputs,
+)
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 
 TWIN = Path("results/evaluation/twin")
@@ -42,30 +51,6 @@ SINGLE = ("ppo_lsi", "ppo", "lane_keeping")
 SRMPC_CURVES = ("srmpc", "srmpc_track_rollout")
 TABLE_KEYS = ("episodes", "mean_return", "mean_return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps",
               "mean_vx")
-
-
-def method_of(config: dict) -> str:
-    """The curve a config belongs to: ``ltv_mpc``, ``srmpc`` or ``srmpc_<variant>``; a policy's: its agent, the
-    directory of its ``policy_path`` (``results/training/ppo_sb3/policy.pt``: ``ppo_sb3``) when one is set."""
-    controller = config["evaluation"]["controller"]
-    if controller in ("ppo", "ppo_lsi") and config["evaluation"].get("policy_path"):
-        return Path(config["evaluation"]["policy_path"]).parent.name
-    if controller != "srmpc":
-        return controller
-    variant = config["srmpc"].get("variant", "paper")
-    return "srmpc" if variant == "paper" else f"srmpc_{variant}"
-
-
-def settings_of(config: dict) -> dict:
-    """The planner settings a point is plotted by: margin [m] and the speed weight of state_weights."""
-    planner = config["planner"]
-    return {"safety_margin_longitudinal_m": float(planner["safety_margin_longitudinal_m"]),
-            "speed_weight": float(planner["state_weights"][3]),
-            "x_weight": float(planner["state_weights"][0])}
-
-
-def read_config(directory: Path) -> dict:
-    return yaml.safe_load((directory / "config.yaml").read_text())
 
 
 def point(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame, str, str]:
@@ -81,14 +66,16 @@ def collect(resamples: int, seed: int) -> tuple[dict, dict]:
     """points[traffic][method] (sorted by v_x) and episodes[directory]."""
     points: dict = {t: {m: [] for m in (*CURVES, *SINGLE)} for t in TRAFFIC}
     episodes: dict[str, pd.DataFrame] = {}
-    directories = sorted(p.parent for p in (*SWEEP.glob("*/summary.json"), *TWIN.glob("*/summary.json")))
+    sweep, table = evaluations(SWEEP), evaluations(TWIN)
+    # the table's runs on the table's seeds at the default planner: the curves' 8 m points and the single points
+    table = [(d, x) for d, x in table if x["default_planner"] and x["seed"] == 0 and x["simulator"] == "twin"]
     for t in TRAFFIC:
-        for m in ("ltv_mpc", "srmpc", "srmpc_track_rollout", *SINGLE):
-            if not (TWIN / f"{m}_{t}" / "summary.json").is_file():
-                raise SystemExit(f"tradeoff: {TWIN / f'{m}_{t}'}: no summary.json (run its DVC stage first)")
-    for directory in directories:  # every twin evaluation of a curve's method or a single point
-        config = read_config(directory)
-        if method_of(config) not in points[config["scenario"]["traffic"]]:
+        for m in (*CURVES, *SINGLE):
+            if not any(x["method"] == m and x["traffic"] == t for _, x in table):
+                raise SystemExit(f"tradeoff: no evaluation of {m} in {t} traffic at the default planner under {TWIN} "
+                                 "(run its DVC stage first)")
+    for directory, experiment in sorted(sweep + table):  # every evaluation of a curve's method or a single point
+        if experiment["method"] not in points[experiment["traffic"]]:
             continue  # another SRMPC variant (results/ablation.md): no intervals computed for it
         p, e, method, traffic = point(directory, resamples, seed)
         if method in SINGLE:
@@ -174,20 +161,24 @@ STRETCH = {"light": {"min_vx": 24.63, "max_event_cost": 0.215}, "dense": {"min_v
 def confirmation(traffic: str, resamples: int, seed: int) -> dict | None:
     """The recommended setting on fresh seeds (100000 + i), beside LTV-MPC at its planner settings and
     PPO-L-SI on the same episodes; against the target and the stretch (strict on both axes)."""
-    names = ("srmpc_recommended", "ltv_mpc_margin_1m", "ppo_lsi")
-    if not all((CONFIRMATION / f"{n}_{traffic}" / "summary.json").is_file() for n in names):
+    roles = {"srmpc": "srmpc_recommended", "ltv_mpc": "ltv_mpc_margin_1m", "ppo_lsi": "ppo_lsi"}  # by controller
+    found = {roles[read_config(d)["evaluation"]["controller"]]: (d, x) for d, x in evaluations(CONFIRMATION)
+             if x["traffic"] == traffic and read_config(d)["evaluation"]["controller"] in roles}
+    if len(found) < len(roles):
         return None
     rows, frames = {}, {}
-    for name in names:
-        p, frames[name], _, _ = point(CONFIRMATION / f"{name}_{traffic}", resamples, seed)
+    for name in roles.values():
+        p, frames[name], _, _ = point(found[name][0], resamples, seed)
         rows[name] = p
     s, policy = rows["srmpc_recommended"], rows["ppo_lsi"]
+    recommended = read_config(found["srmpc_recommended"][0])
     own_target = {"min_vx": policy["mean_vx"], "max_event_cost": policy["mean_event_cost"] / 10}
 
     def meets(goal: dict) -> bool:
         return bool(s["mean_vx"] >= goal["min_vx"] and s["mean_event_cost"] <= goal["max_event_cost"])
 
-    return {**rows, "seed": 100000,
+    return {**rows, "seed": found["srmpc_recommended"][1]["seed"],
+            "recommended": {"variant": recommended["srmpc"]["variant"], "settings": settings_of(recommended)},
             "paired_differences": {other: paired_differences(frames["srmpc_recommended"], frames[other],
                                                              resamples, seed)
                                    for other in ("ltv_mpc_margin_1m", "ppo_lsi")},
@@ -214,7 +205,10 @@ def markdown(report: dict) -> str:
     lines = ["# The safety-speed trade-off: LTV-MPC and SRMPC over planner settings", "",
              "Generated by `pipelines/tradeoff.py` (DVC stage `tradeoff`). Each row: 1000 episodes on the table's",
              "seeds; LTV-MPC and SRMPC share the planner settings of a row. 95% CIs: Wilson (J_c), bootstrap",
-             "(v_x, J_r); paired differences: bootstrap over the same episodes.", ""]
+             "(v_x, J_r); paired differences: bootstrap over the same episodes. The 8 m rows and the policies'",
+             "and lane keeping's rows are the table's own runs (results/evaluation/twin/); every other row is",
+             "stage `evaluate_tradeoff`'s (results/evaluation/tradeoff/). Each row's settings are read from its",
+             "folder's config.yaml.", ""]
     for traffic in TRAFFIC:
         r = report[traffic]
         lines += [f"## {traffic.capitalize()} traffic", "",
@@ -275,8 +269,10 @@ def markdown(report: dict) -> str:
         c = r.get("confirmation")
         if c is not None:
             s, l_, policy = c["srmpc_recommended"], c["ltv_mpc_margin_1m"], c["ppo_lsi"]
-            lines += ["", "**The recommended setting, confirmed on fresh seeds** (`srmpc=track_rollout "
-                      "planner=margin_1m`; 1000 episodes from seed 100000, never used by the sweep):", "",
+            chosen = c["recommended"]
+            lines += ["", f"**The recommended setting, confirmed on fresh seeds** (`srmpc={chosen['variant']} "
+                      f"planner=margin_{chosen['settings']['safety_margin_longitudinal_m']:g}m`; "
+                      f"{s['episodes']} episodes from seed {c['seed']}, never used by the sweep):", "",
                       "| method | J_c | v_x [m/s] | J_r |", "|---|---|---|---|",
                       f"| SRMPC, recommended | {ci(s, 'mean_event_cost', 3)} | {ci(s, 'mean_vx', 2)} | "
                       f"{ci(s, 'mean_return', 0)} |",

@@ -54,6 +54,8 @@ def test_dense_traffic_differs_from_light_only_in_traffic():
         ("evaluation.seed=-3", ["evaluation.seed=-3"]),
         ("srmpc.selection=zzz", ["srmpc.selection", "'zzz'"]),
         ("srmpc=nope", ["srmpc=nope", "best_of_two"]),
+        ("srmpc.variant=track_rollout", ["srmpc.variant='track_rollout'", "tracking=lane_centre", "variant 'paper'"]),
+        ("srmpc.tracking=policy_rollout", ["srmpc.variant='paper'", "variant 'track_rollout'"]),
     ],
 )
 def test_bad_config_is_one_clear_error(override, fragments):
@@ -144,3 +146,14 @@ def test_cli_refuses_an_unbounded_horizon_in_seconds(tmp_path):
     assert result.returncode == 2
     assert [line for line in result.stderr.splitlines() if line.strip()] == [
         "srmpc: config error: planner.horizon_steps=100000: must be an integer in [2, 400]"]
+
+
+def test_each_srmpc_option_is_named_by_the_variant_its_settings_make():
+    """conf/srmpc/<name>.yaml sets ``variant: <name>``, and that is what its settings make (variant_of)."""
+    from srmpc.config.schema import variant_of
+
+    for option in sorted(p.stem for p in (CONFIG_DIR / "srmpc").glob("*.yaml")):
+        srmpc = to_objects(compose_config([f"srmpc={option}"])).srmpc
+        assert srmpc.variant == variant_of(srmpc) == option
+    both = to_objects(compose_config(["srmpc=sqp", "srmpc.tracking=policy_rollout", "srmpc.variant=sqp+track_rollout"]))
+    assert both.srmpc.variant == "sqp+track_rollout"

@@ -21,6 +21,6 @@ def test_default_planner_builds_the_ocps_own_defaults():
 
 
 def test_a_planner_option_changes_only_what_it_names():
-    ocp, _ = planner_ocp(to_objects(compose_config(["planner=margin_1m_speed_weight"])))
+    ocp, _ = planner_ocp(to_objects(compose_config(["planner=margin_1m_speed_weight_2"])))
     assert ocp.geometry == CollisionGeometry(safety_margin_longitudinal_m=1.0)
     assert ocp.weights == TrackingWeights(state=(0.0, 0.5, 20.0, 2.0))

@@ -92,3 +92,54 @@ def test_runs_expand_per_seed_then_per_experiment_file():
                         ["fac", "ma", "ma_discounted", "ma_discounted_fast", "ma_fast", "per_step", "ppo", "ppo_lsi"]]
     with pytest.raises(SystemExit, match="--experiments nope: no experiment files"):
         train_runs.expand_runs([], [], "nope")
+
+
+def _evaluation_runs() -> list[tuple[str, list[str], list[str]]]:
+    """(stage instance, the ``python -m srmpc`` overrides, its deps) of every evaluation stage, matrices expanded."""
+    import itertools
+    import re
+    import shlex
+
+    runs = []
+    for name, stage in DVC_YAML["stages"].items():
+        if "python -m srmpc " not in _commands(stage) or "matrix" not in stage:
+            continue
+        keys = list(stage["matrix"])
+        for values in itertools.product(*stage["matrix"].values()):
+            item = dict(zip(keys, values, strict=True))
+
+            def render(text: str, item=item) -> str:
+                return re.sub(r"\$\{item\.(\w+)\}", lambda m: item[m.group(1)], text)
+
+            words = shlex.split(render(_commands(stage)))
+            runs.append((f"{name}@{'-'.join(values)}", words[words.index("srmpc") + 1:],
+                         [render(dep) for dep in stage["deps"]]))
+    return runs
+
+
+EVALUATION_RUNS = _evaluation_runs()
+
+
+def test_each_evaluation_directory_holds_its_runs_config():
+    """Byte for byte, the committed ``config.yaml`` of every evaluation is what its stage composes today (output
+    folder included): a moved folder resumes there, and the stage would rewrite none of its files."""
+    from srmpc.config.compose import to_objects
+    from srmpc.stages.evaluate import identity_yaml
+
+    assert EVALUATION_RUNS
+    for instance, overrides, _ in EVALUATION_RUNS:
+        cfg = compose_config(overrides)
+        composed = identity_yaml(to_objects(cfg), OmegaConf.to_yaml(cfg, resolve=True))
+        directory = ROOT / cfg.evaluation.output_dir
+        assert (directory / "config.yaml").read_text() == composed, f"{instance}: not the config of {directory}"
+
+
+def test_each_evaluation_folder_is_named_by_its_overrides_and_depends_on_conf_files_only():
+    """results/evaluation/<question>/<the overrides' values>_<traffic>; conf/ deps are files, never a folder."""
+    for instance, overrides, deps in EVALUATION_RUNS:
+        directory = dict(o.split("=", 1) for o in overrides)["evaluation.output_dir"]
+        values = [v.rsplit("/", 1)[-1] for k, v in (o.split("=", 1) for o in overrides)
+                  if k not in ("scenario", "evaluation.output_dir", "evaluation.policy_path", "evaluation")]
+        traffic = dict(o.split("=", 1) for o in overrides)["scenario"]
+        assert Path(directory).name.startswith("_".join(values)) and directory.endswith(f"_{traffic}"), instance
+        assert all(dep.endswith(".yaml") for dep in deps if dep.startswith("conf")), instance

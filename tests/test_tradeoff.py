@@ -119,3 +119,18 @@ def test_outputs_are_written_and_the_confirmation_is_judged_against_target_and_s
     text = (project / "results" / "tradeoff.md").read_text()
     assert "dominated, shown by the paired CIs: by" in text and "confirmed on fresh seeds" in text
     assert (project / "results" / "figures" / "tradeoff.png").stat().st_size > 10_000
+
+
+def test_points_come_from_each_folders_config_not_its_name(project):
+    """Renamed folders give the same points; a second folder of one method at the default planner is an error."""
+    before, _ = tradeoff.collect(resamples=200, seed=0)
+    for i, directory in enumerate(sorted((project / "twin").iterdir())):
+        directory.rename(directory.with_name(f"run_{i}"))
+    after, _ = tradeoff.collect(resamples=200, seed=0)
+    assert {(t, m): [p["mean_vx"] for p in c] for t, ms in after.items() for m, c in ms.items()} == {
+        (t, m): [p["mean_vx"] for p in c] for t, ms in before.items() for m, c in ms.items()}
+    from pipelines.reporting import by_method
+
+    write_evaluation(project / "twin" / "another_srmpc_light", "srmpc", "light", 8, 20.0, 0)
+    with pytest.raises(SystemExit, match="both hold srmpc in light traffic"):
+        by_method(project / "twin")

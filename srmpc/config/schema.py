@@ -14,7 +14,13 @@ from enum import Enum
 from hydra.core.config_store import ConfigStore
 
 from srmpc.agents.hyperparameters import PPOHyperparameters
-from srmpc.controllers.srmpc import MAX_RELINEARIZATIONS, SrmpcSettings
+from srmpc.controllers.srmpc import (
+    MAX_RELINEARIZATIONS,
+    OtherVehiclePrediction,
+    ReferenceSelection,
+    SrmpcSettings,
+    TrackingTarget,
+)
 from srmpc.mpc.ocp import MAX_EGO_CIRCLES, MAX_HORIZON_STEPS, MAX_VEHICLE_SLOTS, OcpConfig
 from srmpc.mpc.solvers import DEFAULT_SOLVER
 from srmpc.scenario.observation import SLOT_COUNT
@@ -131,11 +137,37 @@ class SrmpcConfig(SrmpcSettings):
     policy_path: str | None = None
     """Its policy.pt; null means results/training/<policy>/policy.pt."""
     variant: str = "paper"
-    """Name of the variant, used in run names and tables (the file name in conf/srmpc/)."""
+    """Name of the variant, used in run names and tables: what :func:`variant_of` makes of the settings
+    above (the file name in conf/srmpc/), checked against them at composition."""
 
     def __post_init__(self) -> None:
         check_fields(self, relinearizations=Interval(0, MAX_RELINEARIZATIONS), policy_path=TEXT, variant=TEXT)
         super().__post_init__()
+        if self.variant != (made := variant_of(self)):
+            raise ValueError(f"variant={self.variant!r}: the settings (selection={self.selection.value}, "
+                             f"prediction={self.prediction.value}, relinearizations={self.relinearizations}, "
+                             f"tracking={self.tracking.value}) are variant {made!r}; set srmpc.variant={made}")
+
+
+SQP_RELINEARIZATIONS = 2
+"""The re-linearizations of the variant named ``sqp`` (conf/srmpc/sqp.yaml); another count is ``sqp_<count>``."""
+
+
+def variant_of(settings: SrmpcSettings) -> str:
+    """The variant name the settings make: ``paper`` when each is the paper's (Algorithm 1), else the name of each
+    that differs, in field order, joined by ``+``: ``best_of_two`` (selection), ``rollout_prediction``
+    (prediction), ``sqp`` (relinearizations), ``track_rollout`` (tracking). These are conf/srmpc/'s file names."""
+    names = []
+    if settings.selection is not ReferenceSelection.policy_first:
+        names.append(settings.selection.value)
+    if settings.prediction is not OtherVehiclePrediction.constant_velocity:
+        names.append("rollout_prediction")
+    if settings.relinearizations:
+        k = settings.relinearizations
+        names.append("sqp" if k == SQP_RELINEARIZATIONS else f"sqp_{k}")
+    if settings.tracking is not TrackingTarget.lane_centre:
+        names.append("track_rollout")
+    return "+".join(names) or "paper"
 
 
 class SimulatorName(Enum):
