@@ -1,6 +1,6 @@
 """The package's layers: every ``srmpc`` import runs down the floors (or within one room), never up.
 
-Floors, from the ground up, in the order data flows through them (README, "Layout"):
+Floors, from the ground up, in the order data flows through them (docs/layout.md):
 
 0. ground: ``errors``, ``value_checks``, ``confidence_intervals``, ``metrics``, ``output_lock``, the package root
 1. ``scenario``: the highway scenario (parameters, reward, safety index, observation, highway-env env)
@@ -8,11 +8,12 @@ Floors, from the ground up, in the order data flows through them (README, "Layou
 3. ``agents`` (PPO, PPO-L-SI) and ``mpc`` (the LTV-MPC QP and planner), side by side: neither imports the other
 4. ``controllers``: policies and planners as closed-loop controllers (SRMPC among them), and beside them
    ``sb3_ppo``: Stable-Baselines3's PPO on the twin, the peer of ``agents``' PPO (it uses agents' parts)
-5. ``episode_loop``, ``video``, ``result_table``, ``tracking``: episodes of a controller, their records
+5. ``episode_loop``, ``video``, ``result_table``: episodes of a controller, their records
 6. ``config``: the typed schema and its composition, on top of what it composes, and beside it
    ``output_folder``: a run's files (the episodes CSV schema, the atomic write)
 7. ``sweep``: Hydra multirun jobs (their directories, their MLflow parent), and beside it
-   ``controller_factory``: the env and the controller a composed config names (stages, figures, benchmarks)
+   ``controller_factory``: the env and the controller a composed config names (stages, figures, benchmarks),
+   and ``tracking``: MLflow runs, tagged and named from the composed config (the planner's defaults)
 8. ``stages``: what an entry point runs (evaluate, train)
 9. ``__main__``: the entry point
 
@@ -32,9 +33,9 @@ FLOOR = {
     "sim": 2,
     "agents": 3, "mpc": 3,
     "controllers": 4, "sb3_ppo": 4,
-    "episode_loop": 5, "video": 5, "result_table": 5, "tracking": 5,
+    "episode_loop": 5, "video": 5, "result_table": 5,
     "config": 6, "output_folder": 6,
-    "sweep": 7, "controller_factory": 7,
+    "sweep": 7, "controller_factory": 7, "tracking": 7,
     "stages": 8,
     "__main__": 9,
 }
