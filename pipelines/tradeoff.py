@@ -57,11 +57,13 @@ def method_of(config: dict) -> str:
 
 
 def settings_of(config: dict) -> dict:
-    """The planner settings a point is plotted by: margin [m] and the speed weight of state_weights."""
+    """The planner settings a point is plotted by: margin [m], the speed weight of state_weights and the common
+    scale on the slack prices (1 where a config predates ``planner.slack_price_scale``)."""
     planner = config["planner"]
     return {"safety_margin_longitudinal_m": float(planner["safety_margin_longitudinal_m"]),
             "speed_weight": float(planner["state_weights"][3]),
-            "x_weight": float(planner["state_weights"][0])}
+            "x_weight": float(planner["state_weights"][0]),
+            "slack_price_scale": float(planner.get("slack_price_scale", 1.0))}
 
 
 def read_config(directory: Path) -> dict:
@@ -110,6 +112,8 @@ def label(p: dict) -> str:
         text += f", w_v {s['speed_weight']:g}"
     if s["x_weight"] != 0.0:
         text += f", w_x {s['x_weight']:g}"
+    if s.get("slack_price_scale", 1.0) != 1.0:
+        text += f", slack x{s['slack_price_scale']:g}"
     return text
 
 

@@ -76,3 +76,36 @@ def test_calibration_refuses_the_table_seeds_and_large_probes(tmp_path, spec, fr
     probes.write_text(yaml.safe_dump(spec))
     with pytest.raises(SystemExit, match=fragment.replace("[", r"\[").replace("]", r"\]")):
         calibration.read_probes(probes)
+
+
+def test_reproduction_table_gives_verdicts_claims_and_what_was_fitted(tmp_path, monkeypatch):
+    """pipelines/operating_point.py on hand-made evaluations (tests/test_tradeoff.py's writer)."""
+    import json
+
+    import operating_point
+    from test_tradeoff import write_evaluation
+
+    twin = tmp_path / "twin"
+    for traffic in ("light", "dense"):  # SRMPC safer and faster than both, PPO-L-SI the most crashes
+        write_evaluation(twin / f"ppo_lsi_{traffic}", "ppo_lsi", traffic, 8, 23.0, 80)
+        write_evaluation(twin / f"ltv_mpc_paper_operating_point_{traffic}", "ltv_mpc", traffic, 1, 23.4, 120)
+        write_evaluation(twin / f"srmpc_paper_operating_point_{traffic}", "srmpc", traffic, 1, 24.0, 10)
+        write_evaluation(twin / f"srmpc_track_rollout_paper_operating_point_{traffic}", "srmpc", traffic, 1, 24.7, 2,
+                         "track_rollout")
+    monkeypatch.setattr(operating_point, "TWIN", twin)
+    monkeypatch.setattr(operating_point, "CALIBRATION", tmp_path / "none.csv")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "results").mkdir()
+    monkeypatch.setattr(sys, "argv", ["operating_point.py", "--resamples", "200"])
+    operating_point.main()
+    result = json.loads((tmp_path / "results" / "operating_point.json").read_text())
+    ltv = result["light"]["ltv_mpc"]
+    assert ltv["roles"]["mean_event_cost"] == "fitted" and ltv["roles"]["mean_vx"] == "fitted"
+    assert result["dense"]["ltv_mpc"]["roles"]["mean_vx"] == "predicted"
+    assert ltv["verdicts"]["mean_event_cost"] == "inside"  # the paper's 0.625 against 120 / 200 = 0.6 [0.53, 0.66]
+    assert ltv["verdicts"]["mean_vx"] == "above"  # the paper's 24.38 m/s against ours near 23.4
+    assert set(ltv["verdicts"]) == {"mean_return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps", "mean_vx"}
+    verdicts = {(c["traffic"], c["claim"].split(" (")[0]): c["verdict"] for c in result["claims"]}
+    assert verdicts[("light", "SRMPC has the lowest J_c")] == "holds"
+    assert verdicts[("light", "SRMPC's J_c and rho_c more than 65% below LTV-MPC's")] == "holds"
+    assert "Stretch" in (tmp_path / "results" / "operating_point.md").read_text()
