@@ -90,6 +90,11 @@ def difference(d: dict, key: str, digits: int, negate: bool = False) -> str:
     return f"{f * d[key]:+.{digits}f} [{low:+.{digits}f}, {high:+.{digits}f}]"
 
 
+def lower(cut: float) -> str:
+    """A relative reduction in words: "80% lower", or "103% higher" for a negative one."""
+    return f"{abs(cut):.0%} {'lower' if cut >= 0 else 'higher'}"
+
+
 def claims(rows: dict, traffic: str) -> list[dict]:
     """The Results section's claims at this planner, from the paired differences (same seeds)."""
     s, out = rows["srmpc"], []
@@ -119,9 +124,9 @@ def claims(rows: dict, traffic: str) -> list[dict]:
             out.append({"traffic": traffic, "claim": f"SRMPC's J_c and rho_c more than {threshold:.0%} below "
                         f"{SHORT[m]}'s",
                         "verdict": "holds" if holds else "fails",
-                        "evidence": f"J_c {cuts['mean_event_cost']:.0%} lower ({s['mean_event_cost']:.3f} vs "
+                        "evidence": f"J_c {lower(cuts['mean_event_cost'])} ({s['mean_event_cost']:.3f} vs "
                                     f"{rows[m]['mean_event_cost']:.3f}; paired ΔJ_c "
-                                    f"{difference(d[m], 'mean_event_cost', 3)}), rho_c {cuts['cost_rate']:.0%} lower "
+                                    f"{difference(d[m], 'mean_event_cost', 3)}), rho_c {lower(cuts['cost_rate'])} "
                                     f"({s['cost_rate']:.4f} vs {rows[m]['cost_rate']:.4f})"})
     else:
         dl = d["ltv_mpc"]
