@@ -135,12 +135,13 @@ def frozen_check(spec: dict, rows: pd.DataFrame, directories: dict[str, Path]) -
         raise SystemExit(f"conf/planner/{frozen}.yaml composes to {option_planner}, not probe {probe}'s "
                          f"planner {probe_planner}")
     row = rows.set_index("probe").loc[probe]
+    reason = f" Why this probe: {spec['frozen_reason']}" if spec.get("frozen_reason") else ""
     return [f"Frozen: `planner={frozen}` (`conf/planner/{frozen}.yaml`) is probe `{probe}`'s planner: "
             f"slack_price_scale {row['slack_price_scale']:g}, lateral weight {row['lateral_weight']:g}, "
             f"speed weight {row['speed_weight']:g}, safety margin {row['safety_margin_longitudinal_m']:g} m "
             f"(checked: the option composes to that probe's planner settings). On its {row['episodes']:.0f} "
             f"calibration episodes: J_c {row['mean_event_cost']:.3f}, v_x {row['mean_vx']:.2f} m/s, "
-            f"n_steps {row['mean_n_steps']:.0f}, J_r per step {row['mean_return_per_step']:.2f}."]
+            f"n_steps {row['mean_n_steps']:.0f}, J_r per step {row['mean_return_per_step']:.2f}.{reason}"]
 
 
 def markdown(spec: dict, rows: pd.DataFrame, frozen_lines: list[str]) -> str:
@@ -170,7 +171,7 @@ def markdown(spec: dict, rows: pd.DataFrame, frozen_lines: list[str]) -> str:
     return "\n".join(lines)
 
 
-def figure(rows: pd.DataFrame, path: Path) -> None:
+def figure(rows: pd.DataFrame, path: Path, frozen_probe: str | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -188,6 +189,10 @@ def figure(rows: pd.DataFrame, path: Path) -> None:
                     fmt="o", ms=4, color="tab:blue", alpha=0.7, lw=0.8)
         ax.annotate(r["probe"], (r["mean_vx"], r["mean_event_cost"]), fontsize=6, xytext=(3, 3),
                     textcoords="offset points")
+    if frozen_probe in set(rows["probe"]):
+        r = rows.set_index("probe").loc[frozen_probe]
+        ax.plot(r["mean_vx"], r["mean_event_cost"], "*", color="tab:orange", ms=14, zorder=5,
+                label=f"frozen: {frozen_probe}")
     ax.set_xlabel("mean v_x [m/s]")
     ax.set_ylabel("J_c (share of episodes with a collision or road exit)")
     ax.set_title("LTV-MPC, light traffic: calibration probes (seeds 200000 + i)")
@@ -217,7 +222,7 @@ def main(argv: list[str] | None = None) -> None:
     args.output.mkdir(parents=True, exist_ok=True)
     write_outputs({args.output / "calibration.csv": rows.to_csv(index=False, float_format="%.6g"),
                    args.output / "calibration.md": text})
-    figure(rows, args.figure)
+    figure(rows, args.figure, spec.get("frozen_probe"))
     print(text)
 
 
