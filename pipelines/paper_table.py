@@ -140,6 +140,45 @@ def crosscheck_lines(path: Path) -> list[str]:
     return [*lines, ""]
 
 
+OPERATING_POINT = Path("results/operating_point.json")
+PUBLISHED_KEYS = {"mean_return_per_step": (1, "J_r per step"), "mean_event_cost": (2, "J_c"), "cost_rate": (3, "rho_c"),
+                  "mean_n_steps": (4, "n_steps"), "mean_vx": (5, "v_x")}
+"""Table metric -> (index in PAPER's rows, name)."""
+
+
+def reproduced(row: dict, published: tuple) -> list[str]:
+    """The names of the published numbers that lie inside our 95% CIs of ``row``."""
+    return [name for key, (i, name) in PUBLISHED_KEYS.items()
+            if row[f"{key}_ci95"][0] <= published[i] <= row[f"{key}_ci95"][1]]
+
+
+def operating_point_lines(table: dict, path: Path) -> list[str]:
+    """Why the default planner differs from the paper's, and which config reproduces which published number
+    (``results/operating_point.json``, DVC stage ``operating_point``)."""
+    lines = ["### Why our default planner differs from the paper's", "",
+             "The planner rows above run `planner=ltv_mpc` (`conf/planner/ltv_mpc.yaml`), our default. The paper "
+             "states no slack prices, weights, safety margin or horizon (`docs/deviations.md`). At our prices "
+             "(collision 1e4 s + 1e5 s^2, safety region 50 sigma + 500 sigma^2) both soft constraints act as hard "
+             "ones: LTV-MPC stays behind slower leaders and seldom crashes, where the paper's LTV-MPC drives near "
+             "25 m/s and crashes in most episodes. `planner=paper_operating_point` "
+             "(`conf/planner/paper_operating_point.yaml`: the four slack prices x0.05, speed weight 10, 1 m margin) "
+             "was calibrated on LTV-MPC in light traffic alone, on seeds 200000 + i "
+             "(`results/operating_point/calibration.md`), to the paper's light LTV-MPC row; "
+             "`results/operating_point.md` is the paper's table at that setting."]
+    point = json.loads(path.read_text()) if path.exists() else None
+    lines += ["", "Published numbers (J_r per step, J_c, rho_c, n_steps, v_x) inside our 95% CI, per config:", "",
+              "| traffic | method | `planner=ltv_mpc` (rows above) | `planner=paper_operating_point` |",
+              "|---|---|---|---|"]
+    for traffic in ("light", "dense"):
+        for method in ("ltv_mpc", "srmpc"):
+            published = PAPER[(traffic, method)]
+            default = reproduced(table[traffic][method], published) if method in table.get(traffic, {}) else []
+            ours = reproduced(point[traffic][method], published) if point else None
+            lines.append(f"| {traffic} | {METHODS[method]} | {', '.join(default) or 'none'} | "
+                         f"{'not run' if ours is None else ', '.join(ours) or 'none'} |")
+    return [*lines, ""]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resamples", type=int, default=BOOTSTRAP_RESAMPLES, help="bootstrap resamples")
@@ -190,6 +229,7 @@ def main() -> None:
                       f"{ci(d, 'mean_return', 0)}, J_c {ci(d, 'mean_event_cost', 3)}, v_x {ci(d, 'mean_vx', 2)} m/s."]
         lines.append("")
     lines += crosscheck_lines(Path("results/evaluation/crosscheck.json"))
+    lines += operating_point_lines(table, OPERATING_POINT)
     write_outputs({Path("results/table.md"): "\n".join(lines),
                    Path("results/table.json"): json.dumps(table, indent=2) + "\n"})
     print("\n".join(lines))

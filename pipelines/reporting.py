@@ -81,11 +81,13 @@ def method_of(config: dict) -> str:
 
 
 def settings_of(config: dict) -> dict:
-    """The planner settings a point is told by: margin [m] and the speed (and x) weight of state_weights."""
+    """The planner settings a point is told by: margin [m], the speed (and x) weight of state_weights and the
+    common scale on the slack prices (1 where a config predates ``planner.slack_price_scale``)."""
     planner = config["planner"]
     return {"safety_margin_longitudinal_m": float(planner["safety_margin_longitudinal_m"]),
             "speed_weight": float(planner["state_weights"][3]),
-            "x_weight": float(planner["state_weights"][0])}
+            "x_weight": float(planner["state_weights"][0]),
+            "slack_price_scale": float(planner.get("slack_price_scale", 1.0))}
 
 
 DEFAULT_SETTINGS = settings_of({"planner": vars(PlannerConfig())})

@@ -97,6 +97,8 @@ def label(p: dict) -> str:
         text += f", w_v {s['speed_weight']:g}"
     if s["x_weight"] != 0.0:
         text += f", w_x {s['x_weight']:g}"
+    if s.get("slack_price_scale", 1.0) != 1.0:
+        text += f", slack x{s['slack_price_scale']:g}"
     return text
 
 

@@ -42,13 +42,14 @@ REPOSITORY = Path(__file__).resolve().parents[1]
 def planner_ocp(config: Config) -> tuple[OcpConfig, float]:
     """The OCP of ``planner`` for the scenario, and y_ref [m] (shared by LTV-MPC and SRMPC)."""
     scenario, planner = config.scenario, config.planner
+    scale = planner.slack_price_scale  # a common factor on the four slack prices (1: exactly the listed ones)
     weights = TrackingWeights(
         state=tuple(planner.state_weights), input=tuple(planner.input_weights),
         input_rate=tuple(planner.input_rate_weights),
-        collision_slack_linear=planner.collision_slack_linear,
-        collision_slack_quadratic=planner.collision_slack_quadratic,
-        safety_slack_linear=planner.safety_slack_linear,
-        safety_slack_quadratic=planner.safety_slack_quadratic,
+        collision_slack_linear=scale * planner.collision_slack_linear,
+        collision_slack_quadratic=scale * planner.collision_slack_quadratic,
+        safety_slack_linear=scale * planner.safety_slack_linear,
+        safety_slack_quadratic=scale * planner.safety_slack_quadratic,
     )
     geometry = CollisionGeometry(
         n_ego_circles=planner.n_ego_circles,

@@ -101,6 +101,11 @@ class PlannerConfig:
     """Linear penalty on the per-stage safety-region slack (cheaper: entered only if necessary)."""
     safety_slack_quadratic: float = _OCP.weights.safety_slack_quadratic
     """Quadratic penalty on the safety-region slack."""
+    slack_price_scale: float = 1.0
+    """Common factor on the four slack prices above [dimensionless], in (0, 1]: the QP uses
+    scale x collision_slack_linear, ... , scale x safety_slack_quadratic. 1 keeps the listed prices; below 1
+    both soft constraints get cheaper against the tracking cost, so the planner enters the safety region and
+    keeps collision slack sooner (conf/planner/paper_operating_point.yaml: the paper's LTV-MPC row)."""
     n_ego_circles: int = _OCP.geometry.n_ego_circles
     """Circles covering the ego (2 to ``MAX_EGO_CIRCLES``)."""
     safety_margin_longitudinal_m: float = _OCP.geometry.safety_margin_longitudinal_m
@@ -117,7 +122,8 @@ class PlannerConfig:
             state_weights=Vector(NON_NEGATIVE, length=4), input_weights=Vector(NON_NEGATIVE, length=2),
             input_rate_weights=Vector(NON_NEGATIVE, length=2), collision_slack_linear=NON_NEGATIVE,
             collision_slack_quadratic=NON_NEGATIVE, safety_slack_linear=NON_NEGATIVE,
-            safety_slack_quadratic=NON_NEGATIVE, n_ego_circles=Interval(2, MAX_EGO_CIRCLES),
+            safety_slack_quadratic=NON_NEGATIVE, slack_price_scale=Interval(0.0, 1.0, low_open=True),
+            n_ego_circles=Interval(2, MAX_EGO_CIRCLES),
             safety_margin_longitudinal_m=NON_NEGATIVE, safety_margin_lateral_m=NON_NEGATIVE,
         )
         if self.solver not in available_solvers():

@@ -59,20 +59,26 @@ policy enters through its file's hash), MLflow settings, where the results go an
 produce them."""
 
 
+ADDED_WITH_DEFAULT = {("planner", "slack_price_scale"): 1.0}
+"""Keys added to the schema after results existed, with the default that reproduces those results: an older
+``config.yaml`` without the key and a newer one holding that default have the same episodes."""
+
+
 def evaluation_identity(config_yaml: str) -> dict:
-    """What an evaluation's episodes depend on: the config without :data:`NOT_IDENTITY`, plus
-    ``policy_sha256`` where the controller runs a policy."""
+    """What an evaluation's episodes depend on: the config without :data:`NOT_IDENTITY` (nor the keys of
+    :data:`ADDED_WITH_DEFAULT` at their default), plus ``policy_sha256`` where the controller runs a policy."""
     try:
         identity = yaml.safe_load(config_yaml) or {}
     except yaml.YAMLError:
         identity = None
     if not isinstance(identity, dict):  # not a config mapping: the text itself is the identity
         return {"text": config_yaml}
-    for path in NOT_IDENTITY:
+    for path in NOT_IDENTITY + tuple(ADDED_WITH_DEFAULT):
         node = identity
         for key in path[:-1]:
             node = node.get(key, {}) if isinstance(node, dict) else {}
-        if isinstance(node, dict):
+        at_default = path not in ADDED_WITH_DEFAULT or node.get(path[-1]) == ADDED_WITH_DEFAULT[path]
+        if isinstance(node, dict) and at_default:
             node.pop(path[-1], None)
     return identity
 
