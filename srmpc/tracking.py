@@ -39,9 +39,14 @@ RESULTS_TABLE_TAG = "results_table"
 (pipelines/mlflow_import.py sets and clears it on every import)."""
 RESULTS_VIEW, METRICS_VIEW = "results", "metrics"
 """Share keys of the two runs-table views every experiment carries (see :data:`EXPERIMENT_TAGS`)."""
-RUNS_TABLE_COLUMNS = [f"tags.`{tag}`" for tag in ("method", "traffic", "planner", "simulator", "seed")] + [
-    f"metrics.`{metric}`" for metric in ("mean_event_cost", "cost_rate", "mean_return", "mean_n_steps", "mean_vx")]
-"""The views' columns: the run's tags, then J_c, rho_c, J_r, n_steps, v_x (MLflow shows no metric by default)."""
+RUNS_TABLE_COLUMNS = [f"tags.`{tag}`" for tag in ("method", "traffic")] + [
+    f"metrics.`{metric}`" for metric in ("mean_event_cost", "mean_vx", "cost_rate", "mean_return", "mean_n_steps")
+] + [f"tags.`{tag}`" for tag in ("planner", "simulator", "seed")]
+"""The views' columns, left to right: the run's method and traffic, then J_c, v_x, rho_c, J_r, n_steps, then
+its planner, simulator and seed (MLflow shows no metric by default). The list is both the views'
+``selectedColumns`` (which columns) and ``columnOrder`` (their order: without it the grid lists the
+metric columns alphabetically and the tag columns after them); MLflow 3.17's runs table applies
+``columnOrder`` (ag-grid column ids, the same ``tags.`x```/``metrics.`x``` keys) to the columns it shows."""
 RESULTS_FILTER = f'tags.{RESULTS_TABLE_TAG} = "true"'
 """The results view's filter: the runs of the table's rows. The pipeline's parent run does not match, so
 its children are listed flat (the UI nests a child only under a parent it lists)."""
@@ -49,7 +54,8 @@ its children are listed flat (the UI nests a child only under a parent it lists)
 
 def _saved_view(name: str, state: Mapping[str, Any]) -> str:
     """An experiment tag value the runs table opens as a saved view (MLflow 3.17's envelope: ``name``,
-    ``createdAt`` and the view state as a JSON string). The state holds UI fields (``selectedColumns``)
+    ``createdAt`` and the view state as a JSON string). The state holds UI fields (``selectedColumns``,
+    ``columnOrder``)
     and search facets (``searchFilter``, ``orderByKey``, ``orderByAsc``); the UI writes the facets into
     the URL when it opens the view."""
     return json.dumps({"name": name, "createdAt": 0, "updatedAt": 0, "state": json.dumps(dict(state))})
@@ -58,10 +64,10 @@ def _saved_view(name: str, state: Mapping[str, Any]) -> str:
 EXPERIMENT_TAGS = {
     "mlflow.experimentKind": "custom_model_development",
     f"mlflow.sharedViewState.{RESULTS_VIEW}": _saved_view("Results table", {
-        "selectedColumns": RUNS_TABLE_COLUMNS, "searchFilter": RESULTS_FILTER,
+        "selectedColumns": RUNS_TABLE_COLUMNS, "columnOrder": RUNS_TABLE_COLUMNS, "searchFilter": RESULTS_FILTER,
         "orderByKey": "tags.`mlflow.runName`", "orderByAsc": True}),
     f"mlflow.sharedViewState.{METRICS_VIEW}": _saved_view("All runs, paper metrics", {
-        "selectedColumns": RUNS_TABLE_COLUMNS}),
+        "selectedColumns": RUNS_TABLE_COLUMNS, "columnOrder": RUNS_TABLE_COLUMNS}),
 }
 """Marks an experiment as model development, and stores two runs-table views (the UI's "Views" menu):
 ``results``, the rows of ``results/table.json`` by run name with the paper's metrics as columns, and

@@ -69,6 +69,10 @@ def test_new_and_existing_experiments_open_on_the_runs_table(store):
     state = json.loads(view["state"])
     assert {"metrics.`mean_event_cost`", "metrics.`mean_vx`", "tags.`method`", "tags.`traffic`"} <= set(
         state["selectedColumns"])
+    # the order the grid shows them in: method, traffic, J_c, v_x, rho_c, J_r, n_steps (MLflow 3.17's columnOrder)
+    assert state["columnOrder"][:7] == ["tags.`method`", "tags.`traffic`", "metrics.`mean_event_cost`",
+                                        "metrics.`mean_vx`", "metrics.`cost_rate`", "metrics.`mean_return`",
+                                        "metrics.`mean_n_steps`"]
     assert state["searchFilter"] == 'tags.results_table = "true"'
     assert runs_table_url("http://h:5000/", "7") == (
         "http://h:5000/#/experiments/7/runs?viewStateShareKey=results&workflowType=machine_learning")

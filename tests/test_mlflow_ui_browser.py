@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from srmpc.tracking import METRICS_VIEW, PARENT_RUN_ENV, RESULTS_FILTER, runs_table_url, tracked_run
+from srmpc.tracking import METRICS_VIEW, PARENT_RUN_ENV, RESULTS_FILTER, RUNS_TABLE_COLUMNS, runs_table_url, tracked_run
 from tests.chromium_devtools import CHROMIUM, chromium_page
 from tests.mlflow_server import serve_mlflow
 
@@ -46,9 +46,23 @@ def mlflow_ui(tmp_path, monkeypatch):
         yield runs_table_url(base, experiment_id, METRICS_VIEW)
 
 
-async def _browse(url: str, profile: Path, screenshot: Path, deadline_s: float) -> str:
+HEADER_JS = """[...document.querySelectorAll('.ag-header-cell[col-id]')]
+  .map(cell => [cell.getBoundingClientRect().left, cell.getAttribute('col-id')])
+  .sort((a, b) => a[0] - b[0]).map(([, id]) => id)"""
+"""The col-ids of the runs table's header cells, left to right as drawn (ag-grid's DOM order may differ)."""
+FIRST_COLUMNS = RUNS_TABLE_COLUMNS[:7]
+"""The view's first tag and metric columns: method, traffic, J_c, v_x, rho_c, J_r, n_steps."""
+assert FIRST_COLUMNS == ["tags.`method`", "tags.`traffic`", "metrics.`mean_event_cost`", "metrics.`mean_vx`",
+                         "metrics.`cost_rate`", "metrics.`mean_return`", "metrics.`mean_n_steps`"]
+
+
+def _tag_and_metric_columns(header: list[str]) -> list[str]:
+    return [column for column in header if column.startswith(("tags.", "metrics."))]
+
+
+async def _browse(url: str, profile: Path, screenshot: Path, deadline_s: float) -> tuple[str, list[str]]:
     """Open ``url`` in headless Chromium over the DevTools protocol (a fresh profile, nothing clicked), wait
-    for the runs and the J_c column, save a screenshot; returns the page's DOM."""
+    for the runs and the J_c column, save a screenshot; returns the page's DOM and header (:data:`HEADER_JS`)."""
     async with chromium_page(profile, deadline_s=deadline_s) as page:
         names = " && ".join(f"document.body.innerText.includes({json.dumps(n)})" for n in RUNS)
         await page.call("Page.navigate", url=url)
@@ -57,7 +71,7 @@ async def _browse(url: str, profile: Path, screenshot: Path, deadline_s: float) 
         await asyncio.sleep(3)  # let the grid settle
         shot = await page.call("Page.captureScreenshot", format="png")
         screenshot.write_bytes(base64.b64decode(shot["data"]))
-        return await page.evaluate("document.documentElement.outerHTML")
+        return await page.evaluate("document.documentElement.outerHTML"), await page.evaluate(HEADER_JS)
 
 
 @pytest.mark.timeout(2400)
@@ -66,8 +80,12 @@ def test_runs_table_shows_srmpc_and_ltv_mpc_with_their_j_c(mlflow_ui, tmp_path):
         pytest.skip("Chromium is not installed; install it from Debian's packages: apt-get install chromium")
     screenshot = Path(os.environ.get("SRMPC_UI_SCREENSHOT_DIR", tmp_path)) / "mlflow_runs_table.png"
     screenshot.parent.mkdir(parents=True, exist_ok=True)
-    dom = asyncio.run(_browse(mlflow_ui, tmp_path / "chromium", screenshot, deadline_s=900))
+    dom, header = asyncio.run(_browse(mlflow_ui, tmp_path / "chromium", screenshot, deadline_s=900))
     assert screenshot.stat().st_size > 20_000, "screenshot missing or blank"
+    # the view's column order (these runs log J_c and v_x only): method, traffic, J_c, v_x, then the other tags
+    logged = [c for c in FIRST_COLUMNS if not c.startswith("metrics.") or c in ("metrics.`mean_event_cost`",
+                                                                                 "metrics.`mean_vx`")]
+    assert _tag_and_metric_columns(header)[:len(logged)] == logged, header
 
     assert "Model training" in dom and ">Runs<" in dom  # the runs table, not the GenAI traces overview
     for name in RUNS:
@@ -179,6 +197,7 @@ def test_the_url_make_ui_prints_shows_the_tables_rows_with_j_c_and_v_x_and_a_tra
             (shots / "mlflow_make_ui_url.png").write_bytes(base64.b64decode(shot["data"]))
             dom = await page.evaluate("document.documentElement.outerHTML")
             text = await page.evaluate("document.body.innerText")
+            header = await page.evaluate(HEADER_JS)
 
             await page.call("Page.navigate", url=f"{base}/#/experiments/{experiment_id}/runs/"
                                                  f"{training.info.run_id}/model-metrics")
@@ -187,10 +206,12 @@ def test_the_url_make_ui_prints_shows_the_tables_rows_with_j_c_and_v_x_and_a_tra
             await asyncio.sleep(3)
             shot = await page.call("Page.captureScreenshot", format="png")
             (shots / "mlflow_fresh_clone_training.png").write_bytes(base64.b64decode(shot["data"]))
-            return dom, text, await page.evaluate(CHARTS_JS)
+            return dom, text, header, await page.evaluate(CHARTS_JS)
 
-    dom, text, charts = asyncio.run(browse())
+    dom, text, header, charts = asyncio.run(browse())
     assert "Model training" in dom  # the runs table, not the GenAI traces overview
+    # left to right: method, traffic, J_c, v_x, rho_c, J_r, n_steps (the view's columnOrder), then the other tags
+    assert _tag_and_metric_columns(header)[:len(FIRST_COLUMNS)] == FIRST_COLUMNS, header
     assert "make reproduce" not in text, "the parent run is listed: the table's runs are not shown flat"
     for name, (j_c, v_x) in rows.items():
         assert _cells(dom, name, f"metrics.`{J_C}`") == [_ui_number(j_c)], f"{name}: J_c, the table's {j_c}"
