@@ -89,7 +89,8 @@ def run_probe(overrides: list[str], directory: Path, workers: int) -> None:
     summary = directory / "summary.json"
     if summary.exists() and json.loads(summary.read_text()).get("episodes") == episodes:
         return
-    command = [sys.executable, "-m", "srmpc", *overrides, f"evaluation.output_dir={directory}",
+    shown = directory.relative_to(ROOT) if directory.is_relative_to(ROOT) else directory  # no machine's path
+    command = [sys.executable, "-m", "srmpc", *overrides, f"evaluation.output_dir={shown}",
                f"evaluation.workers={workers}", "tracking.enabled=false",
                f"hydra.run.dir={ROOT / 'outputs/operating_point_calibration' / directory.name}"]
     print(f"probe {directory.name}: {' '.join(overrides)}", flush=True)
