@@ -32,7 +32,7 @@ import pandas as pd
 import yaml
 from omegaconf import OmegaConf
 
-from pipelines.reporting import PAPER, by_method, evaluations, method_row, settings_of, write_outputs
+from pipelines.reporting import PAPER, by_method, ci, evaluations, method_row, settings_of, write_outputs
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 from srmpc.config.compose import compose_config
 
@@ -173,12 +173,6 @@ def frozen_probe() -> dict | None:
     return {"probe": name, **{k: (v.item() if hasattr(v, "item") else v) for k, v in rows.loc[name].items()}}
 
 
-def cell(r: dict, key: str) -> str:
-    digits = LABELS[key][1]
-    low, high = r[f"{key}_ci95"]
-    return f"{r[key]:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
-
-
 def markdown(result: dict) -> str:
     lines = ["# The paper's table at the calibrated planner (`planner=paper_operating_point`)", "",
              "`conf/planner/paper_operating_point.yaml` (slack prices x0.05, speed weight 10, 1 m safety margin) was "
@@ -204,7 +198,7 @@ def markdown(result: dict) -> str:
             for key in PUBLISHED:
                 published = r.get("paper", {}).get(key)
                 mark = " (fitted)" if (traffic, method, key) in FITTED else ""
-                cells += [cell(r, key) + mark, "–" if published is None else f"{published:g}",
+                cells += [ci(r, key, LABELS[key][1]) + mark, "–" if published is None else f"{published:g}",
                           r.get("verdicts", {}).get(key, "–")]
             lines.append(f"| {METHODS[method]} | " + " | ".join(cells) + " |")
         lines += ["", "Paired differences on the same seeds (mean [95% CI]):", "",

@@ -27,6 +27,7 @@ import yaml
 from srmpc.confidence_intervals import table_metrics_with_intervals
 from srmpc.config.schema import PlannerConfig
 from srmpc.output_folder import atomic_write_text
+from srmpc.tracking import evaluated_method
 
 EVALUATION = Path("results/evaluation/twin")
 METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "ppo": "PPO",
@@ -69,15 +70,9 @@ def read_config(directory: Path) -> dict:
 
 
 def method_of(config: dict) -> str:
-    """The method a config evaluates: ``ltv_mpc``, ``srmpc`` or ``srmpc_<variant>``; a policy's: its agent, the
-    directory of its ``policy_path`` (``results/training/ppo_sb3/policy.pt``: ``ppo_sb3``) when one is set."""
-    controller = config["evaluation"]["controller"]
-    if controller in ("ppo", "ppo_lsi") and config["evaluation"].get("policy_path"):
-        return Path(config["evaluation"]["policy_path"]).parent.name
-    if controller != "srmpc":
-        return controller
-    variant = config["srmpc"].get("variant", "paper")
-    return "srmpc" if variant == "paper" else f"srmpc_{variant}"
+    """The method a config evaluates (srmpc.tracking.evaluated_method): ``ltv_mpc``, ``srmpc`` or
+    ``srmpc_<variant>``; a policy's: its agent, named by its ``policy_path`` (``ppo_sb3``) when one is set."""
+    return evaluated_method(config["evaluation"], config.get("srmpc") or {})
 
 
 def settings_of(config: dict) -> dict:

@@ -15,7 +15,6 @@ becomes its child; without the variable (or with an unknown id) a run stands alo
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import functools
 import json
 import os
@@ -190,8 +189,7 @@ NAMED_METHODS = {("srmpc_track_rollout", "margin_1m"): "srmpc_recommended"}
 def _planner_defaults() -> dict[str, Any]:
     from srmpc.config.schema import PlannerConfig
 
-    return {f.name: f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
-            for f in dataclasses.fields(PlannerConfig)}
+    return vars(PlannerConfig())
 
 
 def planner_setting(planner: Mapping[str, Any] | None) -> str:
@@ -215,33 +213,42 @@ def planner_setting(planner: Mapping[str, Any] | None) -> str:
     return "_".join(parts) or "default"
 
 
+def _plain(value: Any) -> Any:
+    return getattr(value, "value", value)  # an Enum of the structured config -> its value
+
+
+def evaluated_method(evaluation: Mapping[str, Any], srmpc: Mapping[str, Any]) -> str:
+    """The method an evaluation config runs, named by its settings: the controller, SRMPC with its variant
+    unless that is the paper's (``srmpc_best_of_two``), and a policy controller given another agent's policy
+    file by the agent (``results/training/ppo_sb3/policy.pt`` or ``.../ppo_sb3/seed_0/policy.pt``: ``ppo_sb3``)."""
+    method = _plain(evaluation.get("controller"))
+    variant = _plain(srmpc.get("variant"))
+    if method == "srmpc" and variant not in (None, "paper"):
+        method = f"srmpc_{variant}"
+    policy_path = evaluation.get("policy_path")
+    if method in ("ppo", "ppo_lsi") and policy_path and Path(policy_path).name == "policy.pt":
+        agent = Path(policy_path).parent  # results/training/<agent>/policy.pt or .../<agent>/seed_<n>/policy.pt
+        method = (agent.parent if agent.name.startswith("seed_") else agent).name
+    return method
+
+
 def run_tags(params: Mapping[str, Any]) -> dict[str, str]:
     """``stage``, ``method``, ``traffic`` and ``seed`` of a run, from its composed config, for filtering
     and grouping in the UI. method: the agent (training) or the controller, SRMPC with its variant
     unless that is the paper's (``srmpc_best_of_two``), a policy controller given another agent's policy file
     by the agent (``evaluation.policy_path=results/training/ppo_sb3/policy.pt``: ``ppo_sb3``), and a
     method with a planner setting of :data:`NAMED_METHODS` by its name there (``srmpc_recommended``)."""
-    def plain(value: Any) -> Any:
-        return getattr(value, "value", value)  # an Enum of the structured config -> its value
-
-    stage = plain(params.get("stage"))
+    stage = _plain(params.get("stage"))
     scenario, agent = params.get("scenario") or {}, params.get("agent") or {}
     evaluation, srmpc = params.get("evaluation") or {}, params.get("srmpc") or {}
     if stage in ("train", "train_sb3"):
-        method, seed = plain(agent.get("name")), agent.get("seed")
+        method, seed = _plain(agent.get("name")), agent.get("seed")
     else:
-        method, seed = plain(evaluation.get("controller")), evaluation.get("seed")
-        variant = plain(srmpc.get("variant"))
-        if method == "srmpc" and variant not in (None, "paper"):
-            method = f"srmpc_{variant}"
-        policy_path = evaluation.get("policy_path")
-        if method in ("ppo", "ppo_lsi") and policy_path and Path(policy_path).name == "policy.pt":
-            agent = Path(policy_path).parent  # results/training/<agent>/policy.pt or .../<agent>/seed_<n>/policy.pt
-            method = (agent.parent if agent.name.startswith("seed_") else agent).name
+        method, seed = evaluated_method(evaluation, srmpc), evaluation.get("seed")
         planner = params.get("planner")
         if isinstance(planner, Mapping):
             method = NAMED_METHODS.get((method, planner_setting(planner)), method)
-    tags = {"stage": stage, "method": method, "traffic": plain(scenario.get("traffic")), "seed": seed}
+    tags = {"stage": stage, "method": method, "traffic": _plain(scenario.get("traffic")), "seed": seed}
     return {key: str(value) for key, value in tags.items() if value not in (None, "")}
 
 
