@@ -305,7 +305,7 @@ def figure(report: dict, path: Path) -> None:
 
     colors = {"ltv_mpc": "tab:blue", "srmpc": "tab:red", "srmpc_track_rollout": "tab:orange",
               "ppo_lsi": "tab:green", "ppo": "tab:purple", "lane_keeping": "tab:gray"}
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.4))
     for ax, traffic in zip(axes, TRAFFIC, strict=True):
         r = report[traffic]
         for method in (*CURVES, *SINGLE):
@@ -329,8 +329,9 @@ def figure(report: dict, path: Path) -> None:
         ax.set_ylabel("J_c (share of episodes with a collision or road exit)")
         ax.set_title(f"{traffic} traffic, 1000 episodes per point")
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()  # below both panels: it covers no point
+    fig.legend(handles, labels, fontsize=8, loc="lower center", ncol=5, frameon=False)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     temporary = path.with_name(path.stem + ".tmp.png")
     fig.savefig(temporary, dpi=130)
     temporary.replace(path)
