@@ -123,13 +123,13 @@ EVALUATION_RUNS = _evaluation_runs()
 def test_each_evaluation_directory_holds_its_runs_config():
     """Byte for byte, the committed ``config.yaml`` of every evaluation is what its stage composes today (output
     folder included): a moved folder resumes there, and the stage would rewrite none of its files."""
-    from srmpc.config.compose import to_objects
+    from srmpc.config.compose import recorded_yaml, to_objects
     from srmpc.stages.evaluate import identity_yaml
 
     assert EVALUATION_RUNS
     for instance, overrides, _ in EVALUATION_RUNS:
         cfg = compose_config(overrides)
-        composed = identity_yaml(to_objects(cfg), OmegaConf.to_yaml(cfg, resolve=True))
+        composed = identity_yaml(to_objects(cfg), recorded_yaml(cfg))
         directory = ROOT / cfg.evaluation.output_dir
         assert (directory / "config.yaml").read_text() == composed, f"{instance}: not the config of {directory}"
 
