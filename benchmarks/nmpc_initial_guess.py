@@ -30,6 +30,7 @@ import argparse
 import json
 import os
 import platform
+import time
 from pathlib import Path
 
 import numba
@@ -125,8 +126,25 @@ def compare(nmpc, ipopt) -> dict[str, float]:
     return {"objective_relative": objective, "first_input": first_input, "trajectory": trajectory, "agree": agree}
 
 
-def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference) -> list[dict]:
-    """Per state and guess: the NMPC's and IPOPT's outcomes (module doc)."""
+def time_qp_against_hpipm(solver: NmpcSolver, hpipm_factory) -> dict:
+    """Our Riccati interior-point solver and HPIPM on the same QP: the last SQP subproblem of the latest solve
+    (its stage-wise form, ``casadi_reference.HpipmQp``). Each solved twice, the second call timed."""
+    qp = solver.qp
+    for _ in range(2):
+        start = time.perf_counter()
+        ours = solver.qp_solver.solve(qp)
+        ours_s = time.perf_counter() - start
+    hpipm = hpipm_factory(qp)
+    for _ in range(2):
+        _, inputs, success, wall_s, internal_s, iterations = hpipm.solve()
+    first_input = float(np.abs(qp.split_solution(ours.z)[1][0] - inputs[0]).max()) if ours.solved else np.nan
+    return {"ours_s": ours_s, "ours_solved": ours.solved, "hpipm_wall_s": wall_s, "hpipm_internal_s": internal_s,
+            "hpipm_success": success, "hpipm_iterations": iterations, "first_input_difference": first_input,
+            "rows": int(qp.n_observed)}
+
+
+def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, hpipm_factory) -> list[dict]:
+    """Per state and guess: the NMPC's and IPOPT's outcomes (module doc); HPIPM on the rollout's last QP."""
     records = []
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = state_inputs(states, i)
@@ -138,7 +156,7 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference) -> l
             result = solver.solve(ego, last_input, others, tracking, guess_states, guess_inputs)
             start = solver.initial_point(ego, others, guess_states, guess_inputs)
             ipopt = reference.solve(ego, last_input, others, tracking, start.states, start.inputs, start.slacks[:n],
-                                    start.sigmas[:, n:2 * n])
+                                    start.sigmas)
             row = {"status": result.status, "converged": result.converged, "iterations": result.iterations,
                    "time_s": result.solve_time_s, "qp_time_s": float(np.sum(result.qp_times_s)),
                    "objective": result.objective, "first_input": result.inputs[0].tolist(),
@@ -151,6 +169,8 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference) -> l
                 row["nmpc_is_ipopt_kkt_point"] = bool(
                     certified.success and np.abs(certified.states - result.states).max() <= AGREEMENT["trajectory_m"])
             record[guess] = row
+            if guess == "policy_rollout" and n:
+                record["hpipm"] = time_qp_against_hpipm(solver, hpipm_factory)
         rollout, shifted = record["policy_rollout"], record["shifted_previous"]
         candidates = [row for row in (rollout, shifted) if row["converged"]]
         best = min(candidates, key=lambda row: row["objective"]) if candidates else rollout
@@ -229,6 +249,23 @@ def agreement(records: list[dict]) -> dict:
     return result
 
 
+def hpipm_summary(records: list[dict]) -> dict:
+    """Median times of our QP solver and HPIPM on the same QPs, and their ratio (ours / HPIPM)."""
+    rows = [r["hpipm"] for r in records if "hpipm" in r and r["hpipm"]["ours_solved"] and r["hpipm"]["hpipm_success"]]
+    ours = np.median([row["ours_s"] for row in rows]) * 1e6
+    wall = np.median([row["hpipm_wall_s"] for row in rows]) * 1e6
+    internal = np.median([row["hpipm_internal_s"] for row in rows]) * 1e6
+    return {"qps": len(rows), "qps_tried": sum("hpipm" in r for r in records),
+            "ours_median_us": float(ours), "hpipm_wall_median_us": float(wall),
+            "hpipm_internal_median_us": float(internal),
+            "ratio_ours_over_hpipm_wall": float(ours / wall), "ratio_ours_over_hpipm_internal": float(ours / internal),
+            "hpipm_iterations_median": float(np.median([row["hpipm_iterations"] for row in rows])),
+            "first_input_difference_max": float(np.max([row["first_input_difference"] for row in rows])),
+            "note": "QP: the last SQP subproblem from the policy's rollout, per state with observed vehicles; "
+                    "HPIPM through CasADi's conic interface (mode speed) on the same QP written stage-wise "
+                    "(casadi_reference.HpipmQp); wall = the CasADi call, internal = HPIPM's own time"}
+
+
 def figure(table: dict, records: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -274,7 +311,7 @@ def main() -> None:
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     numba.set_num_threads(1)
-    from srmpc.mpc.casadi_reference import IpoptReference
+    from srmpc.mpc.casadi_reference import HpipmQp, IpoptReference
 
     load_before = os.getloadavg()
     if args.load_states:
@@ -293,7 +330,7 @@ def main() -> None:
     reference = IpoptReference(ocp)
     ego, last_input, others, tracking = state_inputs(states, 0)
     solver.solve(ego, last_input, others, tracking, *guess_of(states, 0, "policy_rollout"))  # compile
-    records = solve_all(states, solver, reference)
+    records = solve_all(states, solver, reference, HpipmQp)
     table = summarize(records)
     rollout, constant = table["policy_rollout"], table["constant_velocity"]
     measured = {"policy_rollout_median_ms": rollout["time_median_ms"],
@@ -302,6 +339,7 @@ def main() -> None:
     result = {
         "per_guess": table,
         "agreement_with_ipopt": agreement(records),
+        "qp_subsolver_vs_hpipm": hpipm_summary(records),
         "targets": {"policy_rollout_median_ms": {"limit": TARGETS["policy_rollout_median_ms"],
                                                  "measured": measured["policy_rollout_median_ms"],
                                                  "ratio_to_target": measured["policy_rollout_median_ms"]

@@ -43,6 +43,14 @@ SQP (Gauss-Newton Hessian, l1 merit line search):
    phi(w + alpha p) <= phi(w) + eta alpha D; below ``min_step`` the solve stops
    (``line_search_failed``).
 
+Screening: a vehicle's collision (safety) row is left out of the QP at w_i while min_{k,c} g (g') at
+w_i is at least ``screening_norm`` and its slacks are 0; its slacks then keep their value (0). The NLP
+is unchanged: theta, the merit and the convergence test evaluate every constraint exactly, so a step into
+a screened constraint is penalized and the next QP has its row; at a converged point every screened
+constraint is strictly inactive (norm near ``screening_norm`` > 1), its multiplier 0. The QP's cost
+grows with its rows (one backward Riccati pass per row's slack), so this is what keeps dense traffic
+(12 rows unscreened) affordable.
+
 The initial guess (x, u) is clipped into the input and state boxes, x_0 set to x_hat, and the
 slacks start at the smallest values that satisfy the (exact) collision and safety constraints.
 """
@@ -87,6 +95,9 @@ class NmpcSettings:
         descent_fraction: rho of the penalty update (module doc).
         penalty_margin: added to the penalty's lower bound when nu is raised [objective units].
         qp_tolerance: residual tolerance of the Riccati interior-point QP solves.
+        screening_norm: a vehicle's collision (safety) row is left out of a QP while its exact
+            ellipse norm stays at or above this value over the whole iterate and its slacks are 0
+            (dimensionless, ellipse-norm units; module doc).
     """
 
     primal_tolerance: float = 1e-6
@@ -97,7 +108,8 @@ class NmpcSettings:
     min_step: float = 1e-8
     descent_fraction: float = 0.1
     penalty_margin: float = 1.0
-    qp_tolerance: float = 1e-9
+    qp_tolerance: float = 1e-7
+    screening_norm: float = 3.0
 
 
 @dataclass
@@ -116,6 +128,7 @@ class NmpcResult:
         qp_times_s: wall time of each QP solve [s]; qp_iterations: interior-point iterations.
         step_lengths: the line search's alpha per iteration.
         step_norms: ||p||_inf of each QP step (the stationarity measure per iteration).
+        qp_rows: vehicle rows (collision + safety) in each QP after screening.
         solve_time_s: wall time of the whole solve [s].
     """
 
@@ -134,6 +147,7 @@ class NmpcResult:
     qp_iterations: list[int] = field(default_factory=list)
     step_lengths: list[float] = field(default_factory=list)
     step_norms: list[float] = field(default_factory=list)
+    qp_rows: list[int] = field(default_factory=list)
     solve_time_s: float = 0.0
 
     @property
@@ -147,8 +161,8 @@ class NmpcResult:
 
 @dataclass
 class _Point:
-    """An SQP iterate w: states (N + 1, 4), inputs (N, 2), slacks (2V,), sigmas (N, 2V) in the QP's
-    slot layout (slot j < V_obs collision, V_obs + j safety)."""
+    """An SQP iterate w: states (N + 1, 4), inputs (N, 2), slacks (2 V_obs,) = (s_j, then the safety
+    rows' s'_j), sigmas (N, V_obs)."""
 
     states: np.ndarray
     inputs: np.ndarray
@@ -202,8 +216,7 @@ class NmpcSolver:
         weights = self.config.weights
         error = point.states[1:] - tracking_reference[1:]
         rates = np.diff(np.vstack([last_input[None, :], point.inputs]), axis=0)
-        slacks = point.slacks[:2 * n_obs]
-        sigmas = point.sigmas[:, n_obs:2 * n_obs]
+        slacks, sigmas = point.slacks, point.sigmas
         return float(np.sum(self._q * error**2) + np.sum(self._r * point.inputs**2) + np.sum(self._s * rates**2)
                      + weights.collision_slack_linear * slacks.sum()
                      + weights.collision_slack_quadratic * np.sum(slacks**2)
@@ -222,10 +235,9 @@ class NmpcSolver:
         if n_obs:
             collision, safety = self._norms(point.states, others, n_obs)
             parts.append(np.maximum(1.0 - collision - point.slacks[None, :n_obs], 0.0).ravel())
-            parts.append(np.maximum(1.0 - safety - point.sigmas[:, n_obs:2 * n_obs]
-                                    - point.slacks[None, n_obs:2 * n_obs], 0.0).ravel())
-            parts.append(np.maximum(-point.slacks[:2 * n_obs], 0.0))
-            parts.append(np.maximum(-point.sigmas[:, n_obs:2 * n_obs], 0.0).ravel())
+            parts.append(np.maximum(1.0 - safety - point.sigmas - point.slacks[None, n_obs:], 0.0).ravel())
+            parts.append(np.maximum(-point.slacks, 0.0))
+            parts.append(np.maximum(-point.sigmas, 0.0).ravel())
         violations = np.concatenate(parts)
         return float(violations.sum()), float(violations.max(initial=0.0))
 
@@ -240,41 +252,61 @@ class NmpcSolver:
     def initial_point(self, measured_state: np.ndarray, others: np.ndarray, initial_states: np.ndarray,
                       initial_inputs: np.ndarray) -> _Point:
         """The guess clipped into the boxes, x_0 = x_hat, the smallest feasible slacks (module doc)."""
-        horizon, n_slots = self.config.horizon, 2 * self.config.max_vehicles
+        horizon = self.config.horizon
         n_obs = others.shape[1]
         states = np.clip(np.array(initial_states, dtype=np.float64), self._state_lower, self._state_upper)
         states[0] = measured_state
         inputs = np.clip(np.array(initial_inputs, dtype=np.float64), self._input_lower, self._input_upper)
-        slacks = np.zeros(n_slots)
-        sigmas = np.zeros((horizon, n_slots))
+        slacks = np.zeros(2 * n_obs)
+        sigmas = np.zeros((horizon, n_obs))
         if n_obs:
             collision, safety = self._norms(states, others, n_obs)
             slacks[:n_obs] = np.maximum(1.0 - collision, 0.0).max(axis=0)
-            sigmas[:, n_obs:2 * n_obs] = np.maximum(1.0 - safety, 0.0)
+            sigmas[:] = np.maximum(1.0 - safety, 0.0)
         return _Point(states, inputs, slacks, sigmas)
 
     # ------------------------------------------------------------------ SQP
+    def _screen(self, point: _Point, others: np.ndarray, n_obs: int) -> tuple[np.ndarray, np.ndarray]:
+        """Vehicles whose collision / safety rows enter the QP at ``point`` (module doc, screening)."""
+        if not n_obs:
+            empty = np.zeros(0, dtype=np.int64)
+            return empty, empty
+        collision, safety = self._norms(point.states, others, n_obs)
+        threshold = self.settings.screening_norm
+        keep_collision = (collision.min(axis=0) < threshold) | (point.slacks[:n_obs] > 0.0)
+        keep_safety = ((safety.min(axis=0) < threshold) | (point.slacks[n_obs:] > 0.0)
+                       | (point.sigmas > 0.0).any(axis=0))
+        return np.flatnonzero(keep_collision), np.flatnonzero(keep_safety)
+
     def _solve_subproblem(self, point: _Point, measured_state, last_input, tracking_reference, others,
-                          doubled_others, n_obs, result: NmpcResult) -> _Point | None:
+                          n_obs, result: NmpcResult) -> _Point | None:
         """The QP linearized about ``point`` (module doc, step 1); its solution, or None if it failed."""
         qp = self.qp
-        qp.update(measured_state, point.states, point.inputs, tracking_reference, last_input, doubled_others)
-        if n_obs:
-            norms = np.empty((self.config.horizon, n_obs))
-            linearize_ellipse_rows(point.states, others, n_obs, self.circle_offsets, self.collision_semi_axes,
-                                   qp.collision_coefficients[:, :n_obs], qp.collision_row_lower[:, :n_obs], norms)
-            linearize_ellipse_rows(point.states, others, n_obs, self.circle_offsets, self.safety_semi_axes,
-                                   qp.collision_coefficients[:, n_obs:2 * n_obs],
-                                   qp.collision_row_lower[:, n_obs:2 * n_obs], norms)
-            qp.safety_slack_upper[:, :n_obs] = 0.0
-            qp.safety_slack_upper[:, n_obs:2 * n_obs] = SAFETY_SLACK_UPPER
+        collision_rows, safety_rows = self._screen(point, others, n_obs)
+        n_collision, n_rows = collision_rows.size, collision_rows.size + safety_rows.size
+        row_others = np.ascontiguousarray(others[:, np.concatenate([collision_rows, safety_rows])])
+        qp.update(measured_state, point.states, point.inputs, tracking_reference, last_input, row_others)
+        if n_rows:
+            norms = np.empty((self.config.horizon, n_rows))
+            linearize_ellipse_rows(point.states, row_others, n_collision, self.circle_offsets,
+                                   self.collision_semi_axes, qp.collision_coefficients, qp.collision_row_lower, norms)
+            linearize_ellipse_rows(point.states, row_others[:, n_collision:], safety_rows.size, self.circle_offsets,
+                                   self.safety_semi_axes, qp.collision_coefficients[:, n_collision:],
+                                   qp.collision_row_lower[:, n_collision:], norms)
+            qp.safety_slack_upper[:, :n_collision] = 0.0
+            qp.safety_slack_upper[:, n_collision:n_rows] = SAFETY_SLACK_UPPER
         start = time.perf_counter()
         solution = self.qp_solver.solve(qp)
         result.qp_times_s.append(time.perf_counter() - start)
         result.qp_iterations.append(int(solution.iterations or 0))
+        result.qp_rows.append(n_rows)
         if not solution.solved:
             return None
-        states, inputs, slacks, sigmas = qp.split_solution(solution.z)
+        states, inputs, qp_slacks, qp_sigmas = qp.split_solution(solution.z)
+        slacks, sigmas = point.slacks.copy(), point.sigmas.copy()
+        slacks[collision_rows] = qp_slacks[:n_collision]
+        slacks[n_obs + safety_rows] = qp_slacks[n_collision:n_rows]
+        sigmas[:, safety_rows] = qp_sigmas[:, n_collision:n_rows]
         return _Point(states, inputs, slacks, sigmas)
 
     def solve(self, measured_state: np.ndarray, last_input: np.ndarray, predicted_others: np.ndarray,
@@ -296,7 +328,6 @@ class NmpcSolver:
         n_obs = others.shape[1]
         if n_obs > self.config.max_vehicles:
             raise ValueError(f"{n_obs} vehicles exceed max_vehicles={self.config.max_vehicles}")
-        doubled_others = np.concatenate([others, others], axis=1)
         point = self.initial_point(measured_state, others, initial_states, initial_inputs)
         objective = self.objective(point, tracking_reference, last_input, n_obs)
         theta_1, theta_inf = self.infeasibility(point, measured_state, others, n_obs)
@@ -307,7 +338,7 @@ class NmpcSolver:
         status = STATUS_MAX_ITERATIONS
         for _ in range(settings.max_iterations):
             candidate = self._solve_subproblem(point, measured_state, last_input, tracking_reference, others,
-                                               doubled_others, n_obs, result)
+                                               n_obs, result)
             result.iterations += 1
             if candidate is None:
                 status = STATUS_QP_FAILED
@@ -352,7 +383,7 @@ class NmpcSolver:
                 break
         result.states, result.inputs = point.states, point.inputs
         result.collision_slacks = point.slacks[:n_obs].copy()
-        result.safety_slacks = point.sigmas[:, n_obs:2 * n_obs].copy()
+        result.safety_slacks = point.sigmas.copy()
         result.objective, result.status, result.primal_infeasibility = objective, status, theta_inf
         result.stationarity, result.penalty = stationarity, penalty
         result.merit = objective + penalty * theta_1
