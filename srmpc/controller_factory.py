@@ -5,7 +5,7 @@ controllers here, so a controller is built one way wherever it runs. It sits abo
 composed :class:`~srmpc.config.schema.Config`) and below ``stages``.
 
 - :func:`make_env`: the scenario on ``evaluation.simulator``;
-- :func:`build_controller`: lane keeping, LTV-MPC, SRMPC or a trained policy, from the config's plain values;
+- :func:`build_controller`: lane keeping, LTV-MPC, SRMPC, NMPC or a trained policy, from the config's plain values;
 - :func:`planner_ocp`: the OCP that LTV-MPC and SRMPC share (``planner`` applied to the scenario);
 - :func:`policy_file`, :func:`load_policy`: the policy a controller runs, from its file.
 """
@@ -23,9 +23,11 @@ from srmpc.config.schema import Config, ControllerName, SimulatorName
 from srmpc.controllers import Controller
 from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGains
 from srmpc.controllers.ltv_mpc import LtvMpcController
+from srmpc.controllers.nmpc import NmpcController, NmpcInitialGuess
 from srmpc.controllers.policy import PolicyController
 from srmpc.controllers.scenario_ocp import ocp_config
 from srmpc.controllers.srmpc import SceneSource, SrmpcController
+from srmpc.mpc.nmpc import NmpcSolver
 from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights, lane_keeping_tracking_reference
 from srmpc.mpc.planner import LtvMpcPlanner
 from srmpc.scenario import road
@@ -35,6 +37,9 @@ from srmpc.sim.simulator import TwinSimulator
 from srmpc.sim.single_env import HighwayEnvStartTwinEnv, TwinScenarioEnv
 from srmpc.sim.state import SceneState
 
+NMPC_FROM_POLICY = {ControllerName.nmpc_rollout: NmpcInitialGuess.policy_rollout,
+                    ControllerName.nmpc_best_of_two: NmpcInitialGuess.best_of_two}
+"""The NMPC controllers that roll out ``srmpc.policy``, and their initial guess."""
 REPOSITORY = Path(__file__).resolve().parents[1]
 """The repository root: default policy files are its results/training/<agent>/policy.pt, from any directory."""
 
@@ -68,7 +73,7 @@ def _default_policy_path(agent: str, path: str | None) -> Path:
 def policy_file(config: Config) -> tuple[Path, str, str] | None:
     """(file, agent, config key) of the policy the evaluated controller runs; None when it runs none."""
     name = config.evaluation.controller
-    if name is ControllerName.srmpc:
+    if name in (ControllerName.srmpc, *NMPC_FROM_POLICY):
         agent, path, key = config.srmpc.policy.value, config.srmpc.policy_path, "srmpc.policy_path"
     elif name in (ControllerName.ppo_lsi, ControllerName.ppo):
         agent, path, key = name.value, config.evaluation.policy_path, "evaluation.policy_path"
@@ -124,6 +129,15 @@ def build_controller(config: Config, env: gymnasium.Env) -> Controller:
                                                    control_period_s=ocp.control_period_s)
         return SrmpcController(policy, LtvMpcPlanner(ocp, config.planner.solver), scene_source(env), tracking,
                                srmpc)  # SrmpcConfig is the SrmpcSettings schema plus the policy's name and file
+    if name in (ControllerName.nmpc, *NMPC_FROM_POLICY):
+        ocp, y_ref = planner_ocp(config)
+        tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
+                                                   control_period_s=ocp.control_period_s)
+        if name is ControllerName.nmpc:
+            return NmpcController(NmpcSolver(ocp), LtvMpcPlanner(ocp, config.planner.solver), tracking)
+        policy = load_policy(config, config.srmpc.policy.value, config.srmpc.policy_path, "srmpc.policy_path")
+        return NmpcController(NmpcSolver(ocp), LtvMpcPlanner(ocp, config.planner.solver), tracking,
+                              NMPC_FROM_POLICY[name], policy, scene_source(env))
     if name in (ControllerName.ppo_lsi, ControllerName.ppo):
         return PolicyController(load_policy(config, name.value, config.evaluation.policy_path,
                                             "evaluation.policy_path"))

@@ -52,6 +52,13 @@ class ControllerName(Enum):
     """The trained PPO actor's deterministic action (``evaluation.policy_path``)."""
     srmpc = "srmpc"
     """SRMPC: the LTV-MPC (``planner``) linearized about the ``srmpc.policy``'s rollout (srmpc.controllers.srmpc)."""
+    nmpc = "nmpc"
+    """NMPC: the ``planner``'s OCP on the exact model solved to convergence by SQP (srmpc.controllers.nmpc),
+    started from its shifted previous solution (constant velocity in the lane at first)."""
+    nmpc_rollout = "nmpc_rollout"
+    """NMPC started from the ``srmpc.policy``'s rollout (the paper's future work)."""
+    nmpc_best_of_two = "nmpc_best_of_two"
+    """NMPC from the rollout and from the shifted previous solution, the lower converged objective applied."""
 
 
 class PolicyName(Enum):
