@@ -31,6 +31,7 @@ import json
 import os
 import platform
 import time
+from collections import Counter
 from pathlib import Path
 
 import numba
@@ -209,6 +210,7 @@ def summarize(records: list[dict]) -> dict:
             "ipopt_iterations_p99": float(np.percentile([row["ipopt_iterations"] for row in rows], 99)),
         }
         if guess != "best_of_two":
+            entry["failure_statuses"] = dict(Counter(row["status"] for row in rows if not row["converged"]))
             entry["ipopt_failures"] = int(sum(not row["ipopt_success"] for row in rows))
             entry["ipopt_time_median_ms"] = float(np.median([row["ipopt_time_s"] for row in rows]) * 1e3)
             entry["qp_time_median_ms"] = float(np.median([row["qp_time_s"] for row in rows]) * 1e3)
@@ -274,7 +276,7 @@ def figure(table: dict, records: list[dict], path: Path) -> None:
 
     guesses = (*GUESSES, "best_of_two")
     labels = ["constant\nvelocity", "shifted\nprevious", "policy\nrollout", "best of\ntwo"]
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    fig, axes = plt.subplots(1, 4, figsize=(17, 4))
     iterations = [[r[g]["iterations"] for r in records if r[g]["converged"]] for g in guesses]
     axes[0].boxplot(iterations, showfliers=True)
     axes[0].set_xticks(range(1, 5), labels)
@@ -294,6 +296,12 @@ def figure(table: dict, records: list[dict], path: Path) -> None:
     axes[2].set_ylabel("share of states")
     axes[2].legend(fontsize=8)
     axes[2].set_title("Time to convergence")
+    shares = [table[g]["share_at_lowest_objective"] for g in guesses]
+    axes[3].bar(range(1, 5), shares, color="tab:green")
+    axes[3].set_xticks(range(1, 5), labels)
+    axes[3].set_ylim(0, 1)
+    axes[3].set_ylabel("share of converged solves")
+    axes[3].set_title("At the lowest optimum found from any guess")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
