@@ -3,6 +3,8 @@
 Pipeline: problem data (``ocp``, ``vehicle_model``, ``prediction``) -> QP values in a fixed
 pattern (``qp_builder``, ``collision``) -> solve (``solvers``) -> ``Plan`` (``planner``).
 The closed-loop controllers that stand on the planner (LTV-MPC, SRMPC) are in ``srmpc.controllers``.
+``nmpc`` solves the same OCP on the exact model to convergence (SQP on the same QP builder and solver);
+``casadi_reference`` writes it independently in CasADi for IPOPT (optional dependency ``casadi``).
 """
 
 from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights

@@ -19,10 +19,11 @@ SQP (Gauss-Newton Hessian, l1 merit line search):
    x_{k+1} = A_k x_k + B_k u_k + c_k the first-order expansion of f at w_i, and its Hessian P is
    F's exact Hessian (F is quadratic); the constraints' curvature is left out (Gauss-Newton),
    so P is the Lagrangian Hessian's positive semidefinite approximation and the reduced Hessian
-   (R > 0) is positive definite. The QP has 2V vehicle slots: slot j < V holds vehicle j's
-   linearized collision row (its sigma box closed: sigma_hi = 0), slot V + j its linearized
-   safety row with the safety slack sigma_kj (sigma_hi = ``SAFETY_SLACK_UPPER``). The safety
-   slots' own horizon slacks s'_j cost w_col > w_safe per unit, so a solution never uses them
+   (R > 0) is positive definite. The QP (built for 2V vehicle slots) holds first the linearized
+   collision rows (their sigma boxes closed: sigma_hi = 0), then the linearized safety rows with
+   the safety slacks sigma_kj (sigma_hi = ``SAFETY_SLACK_UPPER``); the collision and safety rows
+   have different gradients, so they cannot share one row as in the LTV-MPC's QP. The safety
+   rows' own horizon slacks s'_j cost w_col > w_safe per unit, so a solution never uses them
    while sigma_kj <= 1 suffices, which it always does on the NLP (g' >= 0); they stay in w
    (with their cost in F and in the safety row) so that every QP solution is a point of the NLP.
    The QP is solved by our Riccati interior-point method (``solvers.RiccatiInteriorPointSolver``)
@@ -42,7 +43,6 @@ SQP (Gauss-Newton Hessian, l1 merit line search):
    grad F^T p + 1/2 p^T P p = F(w + p) - F(w), exactly. Backtracking alpha = 1, 1/2, ... until
    phi(w + alpha p) <= phi(w) + eta alpha D; below ``min_step`` the solve stops
    (``line_search_failed``).
-
 4. **Anderson acceleration.** The Gauss-Newton iteration converges linearly, slowly where the
    constraints' curvature times their multipliers dominates the cost's (deep in a safety region:
    sigma's multiplier w_safe,1 + 2 w_safe,2 sigma is ~400). While full steps are taken, the last
@@ -58,7 +58,8 @@ Screening: a vehicle's collision (safety) row is left out of the QP at w_i while
 w_i is at least ``screening_norm`` and its slacks are 0; its slacks then keep their value (0). The NLP
 is unchanged: theta, the merit and the convergence test evaluate every constraint exactly, so a step into
 a screened constraint is penalized and the next QP has its row; at a converged point every screened
-constraint is strictly inactive (norm near ``screening_norm`` > 1), its multiplier 0. The QP's cost
+constraint is strictly inactive (norm >= ``screening_norm`` > 1 at the last linearization point, which
+the last step moved by at most the stationarity tolerance), its multiplier 0. The QP's cost
 grows with its rows (one backward Riccati pass per row's slack), so this is what keeps dense traffic
 (12 rows unscreened) affordable.
 
