@@ -47,8 +47,9 @@ dynamics multipliers nu recovered by the backward recursion nu_k = A_k^T nu_{k+1
 <= tol (1 + scale), mean complementarity mu <= tol.  Returns a status code; anything other than
 ``STATUS_SOLVED`` must be treated as a failed solve.
 
-Code layout: ``solve_ltv_mpc_qp`` reads as the method's steps -- active inequalities, starting
-point, then per iteration ``_residuals`` and ``_convergence_status``, ``_factorize_newton_matrix``
+Code layout: ``solve_cold_in`` reads as the method's steps -- active inequalities
+(``prepare_inequalities``), starting point (``cold_start``; ``interior_point_warm_start`` has the warm
+one), then ``iterate``: per iteration ``_residuals`` and ``_convergence_status``, ``_factorize_newton_matrix``
 (D, stage Hessians, Riccati factorization, Schur complement on s), ``_newton_direction`` for the
 predictor and the corrector (``_mehrotra_centering`` between them), ``_step_lengths`` and
 ``_update_iterate``.  The steps are compiled functions that receive the solver's arrays grouped
@@ -56,7 +57,8 @@ in the named tuples ``_Qp`` (the QP data), ``_Primal`` (a point or a direction),
 ``_Inequalities``, ``_Gradients`` and ``_Newton``; each unpacks what it needs and calls helpers
 on plain arrays that are compiled into it (``inline="always"``).  Tuples passed into inlined
 helpers, or compiled calls out of a step, leave numba reference-count updates on every array per
-call that its pruning pass cannot remove (they cost about 15% of the solve time).
+call that its pruning pass cannot remove (they cost about 15% of the solve time).  All arrays are
+allocated once (``allocate_workspace``); ``solve_ltv_mpc_qp`` allocates them per call.
 """
 
 from __future__ import annotations
