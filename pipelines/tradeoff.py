@@ -15,7 +15,9 @@ settings and traffic come from its folder's ``config.yaml``, never from its name
   ``episodes``, ``mean_event_cost``, ``mean_vx``, ``mean_return`` (and the other keys of ``table.json``)
   with their ``_ci95``; ``[traffic]["dominance"]``, ``["at_policy_speed"]`` and ``["paper_operating_point"]``;
 - ``results/tradeoff.md``: the same as tables, with the verdicts in words;
-- ``results/figures/tradeoff.png``: one panel per traffic level, 95% CIs on both axes.
+- ``results/figures/tradeoff.png``: one panel per traffic level, 95% CIs on both axes; with ``results/rss.json``
+  (DVC stage ``rss``) also PPO-L-RSS's policy and SRMPC proposed by it (table planner, recommended setting) as
+  triangles (``[traffic]["rss"]`` in the JSON).
 
 Dominance: SRMPC point s dominates LTV-MPC point l when s is faster and safer. It is *shown* when the
 paired 95% bootstrap CIs of v_x(s) - v_x(l) lie above 0 and of J_c(s) - J_c(l) lie below 0; it holds *by
@@ -49,6 +51,12 @@ TRAFFIC = ("light", "dense")
 CURVES = {"ltv_mpc": "LTV-MPC", "srmpc": "SRMPC (Algorithm 1)", "srmpc_track_rollout": "SRMPC, tracking the rollout"}
 SINGLE = ("ppo_lsi", "ppo", "lane_keeping")
 SRMPC_CURVES = ("srmpc", "srmpc_track_rollout")
+RSS = Path("results/rss.json")
+RSS_POINTS = {"ppo_lsi/ppo_lsi_rss": ("PPO-L-RSS", "ppo_lsi"),
+              "srmpc/ppo_lsi_rss": ("SRMPC (Algorithm 1), PPO-L-RSS proposing", "srmpc"),
+              "srmpc_recommended/ppo_lsi_rss": ("SRMPC tracking the rollout, 1 m, PPO-L-RSS proposing",
+                                                "srmpc_track_rollout")}
+"""Rows of results/rss.json drawn as points: key -> (label, the color of the method it varies)."""
 TABLE_KEYS = ("episodes", "mean_return", "mean_return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps",
               "mean_vx")
 
@@ -220,6 +228,14 @@ def markdown(report: dict) -> str:
                 name = CURVES.get(method) or METHODS[method]
                 lines.append(f"| {name} | {label(p)} | {ci(p, 'mean_event_cost', 3)} | {ci(p, 'mean_vx', 2)} | "
                              f"{ci(p, 'mean_return', 0)} |")
+        for key, (name, color) in RSS_POINTS.items():
+            p = (r.get("rss") or {}).get(key)
+            if p is None:
+                continue
+            ax.errorbar([p["mean_vx"]], [p["mean_event_cost"]],
+                        xerr=np.abs(np.array([p["mean_vx_ci95"]]).T - p["mean_vx"]),
+                        yerr=np.abs(np.array([p["mean_event_cost_ci95"]]).T - p["mean_event_cost"]),
+                        fmt="^", color=colors[color], markeredgecolor="black", label=name, capsize=2, markersize=6)
         for method in ("ppo_lsi", "ltv_mpc", "srmpc"):
             values = PAPER[(traffic, method)]
             lines.append(f"| {METHODS[method]} (paper) | - | {values[2]:.3f} | {values[5]:.2f} | {values[0]:.0f} |")
@@ -320,6 +336,14 @@ def figure(report: dict, path: Path) -> None:
             for p in pts if method in CURVES else []:
                 ax.annotate(label(p), (p["mean_vx"], p["mean_event_cost"]), fontsize=6, xytext=(3, 3),
                             textcoords="offset points", color=colors[method])
+        for key, (name, color) in RSS_POINTS.items():
+            p = (r.get("rss") or {}).get(key)
+            if p is None:
+                continue
+            ax.errorbar([p["mean_vx"]], [p["mean_event_cost"]],
+                        xerr=np.abs(np.array([p["mean_vx_ci95"]]).T - p["mean_vx"]),
+                        yerr=np.abs(np.array([p["mean_event_cost_ci95"]]).T - p["mean_event_cost"]),
+                        fmt="^", color=colors[color], markeredgecolor="black", label=name, capsize=2, markersize=6)
         for method in ("ppo_lsi", "ltv_mpc", "srmpc"):
             values = PAPER[(traffic, method)]
             ax.plot(values[5], values[2], "o", markerfacecolor="none", markeredgecolor=colors[method],
@@ -353,6 +377,10 @@ def main() -> None:
             "paper_operating_point": paper_operating_point(traffic, methods, episodes, args.resamples, args.seed),
             "confirmation": confirmation(traffic, args.resamples, args.seed),
         }
+        if RSS.is_file():
+            rows = json.loads(RSS.read_text())["evaluation"][traffic]
+            report[traffic]["rss"] = {key: {k: v for k, v in rows[key].items() if k.removesuffix("_ci95") in TABLE_KEYS
+                                            or k == "directory"} for key in RSS_POINTS}
     Path("results/figures").mkdir(parents=True, exist_ok=True)
     figure(report, Path("results/figures/tradeoff.png"))
     write_outputs({Path("results/tradeoff.json"): json.dumps(report, indent=1) + "\n",

@@ -1,4 +1,5 @@
-"""The training figure (PPO, PPO-L-SI and Stable-Baselines3's PPO, over seeds) and ``results/training/summary.json``.
+"""The training figure (PPO, PPO-L-SI, PPO-L-RSS and Stable-Baselines3's PPO, over seeds) and
+``results/training/summary.json``.
 
     python -m pipelines.training_figure [--training-dir results/training] [--seeds 0 1 2] [--window 0.05]
 
@@ -11,11 +12,12 @@ by the trainer; DVC stage ``train``) and writes:
 - ``results/figures/training.csv``: the raw and smoothed series behind the plot, per seed;
 - ``<training-dir>/summary.json``: per agent the mean over seeds of frames, wall_s, return,
   cost_return, cost_rate (and more) over the last 5% of training, ``per_seed`` (the same per seed),
-  ``cost_rate_ci95``, ``cost_return_ci95`` and ``return_ci95`` (Student-t over seeds), the list
-  ``seeds``, and the paper's claim (PPO-L-SI's final cost rate under half of PPO's, its return not
-  worse) evaluated on the means and per seed against our PPO (``paper_claim``) and against
-  Stable-Baselines3's PPO (``paper_claim_vs_ppo_sb3``), and ``flat_from_frames``: per series, the first frame
-  after which the smoothed mean over seeds stays within 25% of its final value.
+  ``cost_rate_ci95``, ``cost_return_ci95``, ``return_ci95`` and ``vx_ci95`` (Student-t over seeds; null
+  for one seed), the list ``seeds``, and the paper's claim (PPO-L-SI's final cost rate under half of PPO's,
+  its return not worse) evaluated on the means and per seed against our PPO (``paper_claim``) and against
+  Stable-Baselines3's PPO (``paper_claim_vs_ppo_sb3``), the same claim for PPO-L-RSS against our PPO
+  (``paper_claim_ppo_lsi_rss``, keys ``..._rss_over_ppo``), and ``flat_from_frames``: per series, the first
+  frame after which the smoothed mean over seeds stays within 25% of its final value.
 """
 
 from __future__ import annotations
@@ -31,8 +33,11 @@ from srmpc.confidence_intervals import t_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 
-AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI", "ppo_sb3": "PPO (Stable-Baselines3)"}
-"""ppo_sb3: the peer PPO (srmpc.sb3_ppo, DVC stage ``train_sb3``), PPO's settings in another implementation."""
+AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI", "ppo_sb3": "PPO (Stable-Baselines3)", "ppo_lsi_rss": "PPO-L-RSS",
+          "ppo_lsi_rss_ad_rss_lib": "PPO-L-RSS, ad-rss-lib's parameters"}
+"""ppo_sb3: the peer PPO (srmpc.sb3_ppo, DVC stage ``train_sb3``), PPO's settings in another implementation;
+ppo_lsi_rss: PPO-L-SI with the RSS safety index (DVC stage ``train_rss``), ppo_lsi_rss_ad_rss_lib the same with
+ad-rss-lib's RSS parameters (one seed)."""
 SERIES = (("return", "episode/return", "episodic return $J_r$"),
           ("cost_return", "episode/cost_return", "episodic cost return $J_c$"),
           ("cost_rate", "cost_rate", r"cost rate $\rho_c$"))
@@ -69,7 +74,7 @@ def summarize_seeds(per_seed: dict[int, dict[str, float]]) -> dict:
     """Mean over seeds of every numeric summary key, t intervals of the claim's metrics, and per seed."""
     keys = [k for k, v in next(iter(per_seed.values())).items() if isinstance(v, int | float)]
     summary: dict = {k: sum(s[k] for s in per_seed.values()) / len(per_seed) for k in keys}
-    for key in ("cost_rate", "cost_return", "return"):
+    for key in ("cost_rate", "cost_return", "return", "vx"):
         interval = t_interval([s[key] for s in per_seed.values()])
         summary[f"{key}_ci95"] = None if math.isnan(interval[0]) else list(interval)
     summary["seeds"] = sorted(per_seed)
@@ -77,23 +82,25 @@ def summarize_seeds(per_seed: dict[int, dict[str, float]]) -> dict:
     return summary
 
 
-def paper_claim(ppo: dict, lsi: dict, baseline: str = "our PPO (srmpc.agents, constraint off)") -> dict:
-    """The paper's training claim on the means over seeds, and seed by seed (same seed, same resets)."""
+def paper_claim(ppo: dict, lsi: dict, baseline: str = "our PPO (srmpc.agents, constraint off)",
+                agent: str = "PPO-L-SI", short: str = "lsi") -> dict:
+    """The paper's training claim for the constrained ``agent`` (keys named by ``short``) on the means over seeds,
+    and seed by seed (same seed, same resets)."""
     holds = lambda a, b: bool(b["cost_rate"] < 0.5 * a["cost_rate"] and b["return"] >= a["return"])  # noqa: E731
     common = sorted(set(ppo["per_seed"]) & set(lsi["per_seed"]), key=int)
+    ratio, difference = f"cost_rate_ratio_{short}_over_ppo", f"return_difference_{short}_minus_ppo"
     return {
-        "statement": "at the end of training PPO-L-SI's cost rate is under half of PPO's and its return is not worse",
+        "statement": f"at the end of training {agent}'s cost rate is under half of PPO's and its return is not worse",
         "ppo": baseline,
-        "cost_rate_ratio_lsi_over_ppo": lsi["cost_rate"] / ppo["cost_rate"] if ppo["cost_rate"] > 0 else None,
-        "return_difference_lsi_minus_ppo": lsi["return"] - ppo["return"],
+        ratio: lsi["cost_rate"] / ppo["cost_rate"] if ppo["cost_rate"] > 0 else None,
+        difference: lsi["return"] - ppo["return"],
         "holds": holds(ppo, lsi),
         "cost_rate_ci95_disjoint": None if None in (lsi["cost_rate_ci95"], ppo["cost_rate_ci95"]) else
         bool(lsi["cost_rate_ci95"][1] < ppo["cost_rate_ci95"][0]
              or ppo["cost_rate_ci95"][1] < lsi["cost_rate_ci95"][0]),
-        "per_seed": {seed: {"cost_rate_ratio_lsi_over_ppo": lsi["per_seed"][seed]["cost_rate"]
+        "per_seed": {seed: {ratio: lsi["per_seed"][seed]["cost_rate"]
                             / ppo["per_seed"][seed]["cost_rate"] if ppo["per_seed"][seed]["cost_rate"] > 0 else None,
-                            "return_difference_lsi_minus_ppo": lsi["per_seed"][seed]["return"]
-                            - ppo["per_seed"][seed]["return"],
+                            difference: lsi["per_seed"][seed]["return"] - ppo["per_seed"][seed]["return"],
                             "holds": holds(ppo["per_seed"][seed], lsi["per_seed"][seed])} for seed in common},
     }
 
@@ -148,8 +155,8 @@ def main() -> None:
     for axis in axes:
         axis.grid(alpha=0.3)
         axis.legend()
-    fig.suptitle(f"PPO (ours and Stable-Baselines3's) vs PPO-L-SI in training: mean over seeds, band = range over "
-                 f"seeds (running mean over {args.window:.0%} of the iterations)")
+    fig.suptitle(f"PPO (ours and Stable-Baselines3's) vs PPO-L-SI and PPO-L-RSS in training: mean over seeds, band = "
+                 f"range over seeds (running mean over {args.window:.0%} of the iterations)")
     fig.tight_layout()
     fig.savefig(args.figure_dir / "training.png", dpi=120)
     with (args.figure_dir / "training.csv").open("w", newline="") as handle:
@@ -167,6 +174,9 @@ def main() -> None:
     if {"ppo_sb3", "ppo_lsi"} <= summary.keys():
         summary["paper_claim_vs_ppo_sb3"] = paper_claim(summary["ppo_sb3"], summary["ppo_lsi"],
                                                         "Stable-Baselines3's PPO with our PPO's settings")
+    if {"ppo", "ppo_lsi_rss"} <= summary.keys():
+        summary["paper_claim_ppo_lsi_rss"] = paper_claim(summary["ppo"], summary["ppo_lsi_rss"], agent="PPO-L-RSS",
+                                                         short="rss")
     (args.training_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(json.dumps({k: v for k, v in summary.items()}, indent=2)[:4000])
 

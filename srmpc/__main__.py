@@ -29,7 +29,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from srmpc.config.compose import ConfigError, compose_config, to_objects
+from srmpc.config.compose import ConfigError, compose_config, recorded_yaml, to_objects
 from srmpc.config.schema import Config, Stage, register_schema
 from srmpc.errors import FileFault, describe_file_fault
 from srmpc.output_lock import OutputDirectoryBusy, OutputDirectoryUnwritable, exclusive_output_dir
@@ -74,7 +74,7 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
     this process's alone for the run (srmpc.output_lock): a second run into it is refused before the
     MLflow run starts."""
     config: Config = to_objects(cfg)
-    config_yaml = OmegaConf.to_yaml(cfg, resolve=True)
+    config_yaml = recorded_yaml(cfg)
     tracking = config.tracking
     if config.stage is Stage.train_sb3:
         run_name = f"train-{config.agent.name}-sb3-{config.scenario.traffic}"

@@ -219,17 +219,28 @@ def _plain(value: Any) -> Any:
 
 def evaluated_method(evaluation: Mapping[str, Any], srmpc: Mapping[str, Any]) -> str:
     """The method an evaluation config runs, named by its settings: the controller, SRMPC with its variant
-    unless that is the paper's (``srmpc_best_of_two``), and a policy controller given another agent's policy
-    file by the agent (``results/training/ppo_sb3/policy.pt`` or ``.../ppo_sb3/seed_0/policy.pt``: ``ppo_sb3``)."""
+    unless that is the paper's (``srmpc_best_of_two``), a policy controller given another agent's policy
+    file by the agent (``results/training/ppo_sb3/policy.pt`` or ``.../ppo_sb3/seed_0/policy.pt``: ``ppo_sb3``),
+    and SRMPC rolling out another agent's policy with that agent appended (``srmpc_ppo_lsi_rss``)."""
     method = _plain(evaluation.get("controller"))
     variant = _plain(srmpc.get("variant"))
     if method == "srmpc" and variant not in (None, "paper"):
         method = f"srmpc_{variant}"
     policy_path = evaluation.get("policy_path")
     if method in ("ppo", "ppo_lsi") and policy_path and Path(policy_path).name == "policy.pt":
-        agent = Path(policy_path).parent  # results/training/<agent>/policy.pt or .../<agent>/seed_<n>/policy.pt
-        method = (agent.parent if agent.name.startswith("seed_") else agent).name
+        method = _agent_of(policy_path)
+    proposer_path = srmpc.get("policy_path")
+    if method.startswith("srmpc") and proposer_path and Path(proposer_path).name == "policy.pt":
+        proposer = _agent_of(proposer_path)
+        if proposer != _plain(srmpc.get("policy")):
+            method = f"{method}_{proposer}"
     return method
+
+
+def _agent_of(policy_path: str) -> str:
+    """The agent of results/training/<agent>/policy.pt or .../<agent>/seed_<n>/policy.pt."""
+    agent = Path(policy_path).parent
+    return (agent.parent if agent.name.startswith("seed_") else agent).name
 
 
 def run_tags(params: Mapping[str, Any]) -> dict[str, str]:

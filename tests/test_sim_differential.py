@@ -17,7 +17,7 @@ import pytest
 
 from srmpc.scenario.highway import SrmpcHighwayEnv
 from srmpc.scenario.observation import closest_lane
-from srmpc.scenario.parameters import ScenarioParameters
+from srmpc.scenario.parameters import SafetyIndexKind, SafetyIndexParameters, ScenarioParameters
 from srmpc.scenario.spawning import spawn_statistics
 from srmpc.sim.simulator import TwinSimulator
 
@@ -104,6 +104,25 @@ def test_twin_matches_highway_env_step_for_step(traffic):
     results = [run_differential(env, seed, steps=100 if seed % 10 == 0 else 25) for seed in range(50)]
     _summarize(traffic, results)
     assert sum(r["termination"] == "collision" for r in results) >= 3  # collisions were exercised
+
+
+def test_twin_matches_highway_env_with_the_rss_index():
+    """The RSS safety index (scenario.safety_index.kind=rss) gives the same SI cost in both, and other costs
+    than the paper's index on the same steps."""
+    rss = SafetyIndexParameters(kind=SafetyIndexKind.rss)
+    results = []
+    for traffic, gap in TRAFFIC_GAPS.items():
+        env = SrmpcHighwayEnv(ScenarioParameters(traffic=traffic, mean_spawn_gap_m=gap, safety_index=rss))
+        results += [run_differential(env, seed, steps=25) for seed in range(10)]
+    _summarize("rss", results)
+    params = ScenarioParameters(mean_spawn_gap_m=15.0)
+    costs = {}
+    for kind in SafetyIndexKind:
+        env = SrmpcHighwayEnv(ScenarioParameters(mean_spawn_gap_m=15.0,
+                                                 safety_index=SafetyIndexParameters(kind=kind)))
+        env.reset(seed=3)
+        costs[kind] = [env.step(a)[4]["cost"] for a in random_actions(2, 20, params)]
+    assert costs[SafetyIndexKind.rss] != costs[SafetyIndexKind.paper]
 
 
 @pytest.mark.slow

@@ -73,3 +73,21 @@ def _instantiate(node: DictConfig, path: str) -> Any:
 def to_objects(cfg: DictConfig) -> Any:
     """The composed config as the schema's dataclasses; value errors name the full key."""
     return _instantiate(cfg, "")
+
+
+def recorded_config(container: dict) -> dict:
+    """The composed config (a plain container) as a run records it in its ``config.yaml``: without
+    ``scenario.safety_index.rss`` and ``.kind`` where the index is the paper's, since nothing then depends on
+    them (and results recorded before the RSS index existed keep their config.yaml)."""
+    safety_index = (container.get("scenario") or {}).get("safety_index")
+    kind = safety_index.get("kind", "paper") if isinstance(safety_index, dict) else None
+    if getattr(kind, "value", kind) != "paper":
+        return container
+    scenario = dict(container["scenario"])
+    scenario["safety_index"] = {k: v for k, v in safety_index.items() if k not in ("kind", "rss")}
+    return {**container, "scenario": scenario}
+
+
+def recorded_yaml(cfg: DictConfig) -> str:
+    """The ``config.yaml`` text of a run of the composed ``cfg`` (resolved; see :func:`recorded_config`)."""
+    return OmegaConf.to_yaml(recorded_config(OmegaConf.to_container(cfg, resolve=True)))

@@ -34,9 +34,9 @@ from srmpc.scenario.observation import (
     find_observed_vehicles,
     raw_observation,
 )
-from srmpc.scenario.parameters import ScenarioParameters
+from srmpc.scenario.parameters import SafetyIndexKind, ScenarioParameters
 from srmpc.scenario.reward import reward_prime, training_reward
-from srmpc.scenario.safety_index import safety_index, safety_index_cost
+from srmpc.scenario.safety_index import safety_index_cost, scene_safety_index
 
 
 @dataclass
@@ -163,7 +163,8 @@ class SrmpcHighwayEnv(HighwayEnv):
         find_observed_vehicles(ego, others, self.params.perception_range_m, slot_vehicle)
         raw_observation(ego, others, slot_vehicle, self.params.perception_range_m, raw)
         si = self.params.safety_index
-        phi = safety_index(ego, others, slot_vehicle, si.sigma_m, si.d_min_m, si.edge_d_min_m, si.n, si.k_s)
+        phi = scene_safety_index(ego, others, slot_vehicle, si.kind is SafetyIndexKind.rss, si.sigma_m, si.d_min_m,
+                                 si.edge_d_min_m, si.n, si.k_s, si.rss.as_tuple())
         self.measurement = SceneMeasurement(ego, others, slot_vehicle, raw, float(phi))
         return self.measurement
 

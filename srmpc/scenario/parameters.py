@@ -6,8 +6,9 @@ config. Validation in ``__post_init__`` names the bad field and value.
 
 from __future__ import annotations
 
+import enum
 import math
-from dataclasses import dataclass, field
+from dataclasses import astuple, dataclass, field
 
 from srmpc.scenario import road
 from srmpc.value_checks import (
@@ -56,6 +57,65 @@ class RewardParameters:
         check_fields(self, vx_ref_mps=POSITIVE, speed_weight=UNIT_INTERVAL, scale=POSITIVE)
 
 
+class SafetyIndexKind(enum.Enum):
+    """Which safe distance the safety index's barrier uses (``srmpc.scenario.safety_index``)."""
+
+    paper = "paper"
+    """sigma + d_min, a constant (paper eq. (si))."""
+    rss = "rss"
+    """sigma + the pair's Responsibility-Sensitive Safety distance (speed-dependent)."""
+
+
+@dataclass
+class RssParameters:
+    """Responsibility-Sensitive Safety's parameters (Shalev-Shwartz et al. 2017), for ``kind: rss``.
+
+    Defaults: the "aggressive" set calibrated on naturalistic driving data in the IEEE study
+    ieeexplore.ieee.org/document/9304756 (response time 0.53 s). Its "conservative" set has rho 1.94 s,
+    5.91 / 4.13 / 9.50 m/s^2, 0.45 / 0.86 m/s^2, mu 0.07 m; intel/ad-rss-lib's defaults are rho 1 s (ego)
+    and 2 s (others), 3.5 / 4 / 8 m/s^2, 0.2 / 0.8 m/s^2, mu 0.1 m (``conf/experiment/rss/ad_rss_lib.yaml``).
+    Why the aggressive set by default: at 25 m/s behind a leader at 25 m/s it asks for 54 m, the
+    library's defaults for 89 m, twice dense traffic's mean same-lane gap (3 lanes x 15 m).
+
+    Ranges: response times in [0, 10] s; accelerations at most 20 m/s^2 (2 g, beyond any road tyre),
+    brakings above 0 (they divide) and a_brake,min <= a_brake,max (RSS's definition); mu in [0, 10] m.
+    """
+
+    response_time_ego_s: float = 0.53
+    """rho of the ego [s]: how long it may keep accelerating before it responds."""
+    response_time_others_s: float = 0.53
+    """rho of the other vehicles [s] (the rear one's in a same-lane pair with the ego in front)."""
+    longitudinal_acceleration_max_mps2: float = 4.10
+    """a_accel,max [m/s^2]: the rear vehicle's worst acceleration during its response time."""
+    longitudinal_brake_min_mps2: float = 4.64
+    """a_brake,min [m/s^2]: the braking the rear vehicle guarantees afterwards."""
+    longitudinal_brake_max_mps2: float = 8.03
+    """a_brake,max [m/s^2]: the front vehicle's hardest braking."""
+    lateral_acceleration_max_mps2: float = 0.43
+    """a^lat_accel,max [m/s^2]: lateral acceleration towards the other vehicle during the response time."""
+    lateral_brake_min_mps2: float = 0.96
+    """a^lat_brake,min [m/s^2]: lateral braking afterwards."""
+    lateral_margin_m: float = 0.07
+    """mu [m]: lateral fluctuation margin."""
+
+    def __post_init__(self) -> None:
+        check_fields(
+            self, response_time_ego_s=Interval(0.0, 10.0), response_time_others_s=Interval(0.0, 10.0),
+            longitudinal_acceleration_max_mps2=Interval(0.0, 20.0),
+            longitudinal_brake_min_mps2=Interval(0.0, 20.0, low_open=True),
+            longitudinal_brake_max_mps2=Interval(0.0, 20.0, low_open=True),
+            lateral_acceleration_max_mps2=Interval(0.0, 20.0),
+            lateral_brake_min_mps2=Interval(0.0, 20.0, low_open=True), lateral_margin_m=Interval(0.0, 10.0),
+        )
+        _check(self.longitudinal_brake_min_mps2 <= self.longitudinal_brake_max_mps2, "longitudinal_brake_min_mps2",
+               self.longitudinal_brake_min_mps2,
+               f"must be <= longitudinal_brake_max_mps2={self.longitudinal_brake_max_mps2} (RSS)")
+
+    def as_tuple(self) -> tuple[float, ...]:
+        """The values as floats in field order, the layout of ``srmpc.scenario.safety_index``'s ``RSS_*`` indices."""
+        return tuple(float(value) for value in astuple(self))
+
+
 @dataclass
 class SafetyIndexParameters:
     """Paper eq. (si): phi = (sigma + d_min)^n - d^n - k * d_dot, and the cost c of the SI transition.
@@ -89,8 +149,14 @@ class SafetyIndexParameters:
     """Slack eta of the safe-control condition phi(s') < max(phi(s) - eta, 0) [units of phi]."""
     cost_floor: float = -0.1
     """Lower clip of the cost, the paper's -0.1 (keeps the policy from becoming too conservative)."""
+    kind: SafetyIndexKind = SafetyIndexKind.paper
+    """paper (sigma + d_min) or rss (sigma + the RSS distance of each pair, ``rss``'s parameters)."""
+    rss: RssParameters = field(default_factory=RssParameters)
+    """RSS's parameters; used only with ``kind: rss`` (and recorded in a run's config.yaml only then)."""
 
     def __post_init__(self) -> None:
+        if isinstance(self.rss, dict):
+            self.rss = RssParameters(**self.rss)
         check_fields(self, sigma_m=NON_NEGATIVE, d_min_m=NON_NEGATIVE, edge_d_min_m=NON_NEGATIVE, n=POSITIVE,
                      k_s=NON_NEGATIVE, eta=NON_NEGATIVE, cost_floor=NON_POSITIVE)
 

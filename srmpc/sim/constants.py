@@ -11,7 +11,7 @@ import math
 from collections import namedtuple
 
 from srmpc.scenario import road
-from srmpc.scenario.parameters import ScenarioParameters
+from srmpc.scenario.parameters import SafetyIndexKind, ScenarioParameters
 
 # --- highway-env vehicle geometry and limits --------------------------------------------------
 VEHICLE_LENGTH = road.VEHICLE_LENGTH
@@ -104,6 +104,8 @@ SimConstants = namedtuple(
         "si_k",  # [s]
         "si_eta",  # [units of phi]
         "si_cost_floor",  # [units of phi]
+        "si_rss",  # the RSS index (scenario.safety_index.kind == rss) instead of the paper's
+        "si_rss_parameters",  # 8 floats, RssParameters.as_tuple() [s, s, m/s^2 x5, m]
     ],
 )
 """Everything a kernel needs to know about the scenario (see :func:`sim_constants`)."""
@@ -142,4 +144,6 @@ def sim_constants(params: ScenarioParameters) -> SimConstants:
         si_k=float(si.k_s),
         si_eta=float(si.eta),
         si_cost_floor=float(si.cost_floor),
+        si_rss=si.kind is SafetyIndexKind.rss,
+        si_rss_parameters=si.rss.as_tuple(),
     )

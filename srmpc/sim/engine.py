@@ -29,7 +29,7 @@ from srmpc.scenario.observation import (
     raw_observation,
 )
 from srmpc.scenario.reward import reward_prime, training_reward
-from srmpc.scenario.safety_index import safety_index, safety_index_cost
+from srmpc.scenario.safety_index import safety_index_cost, scene_safety_index
 from srmpc.sim.collision import handle_collisions
 from srmpc.sim.constants import MAX_STEERING_ANGLE, TERMINATION_COLLISION, TERMINATION_NONE, TERMINATION_OFFROAD
 from srmpc.sim.idm import all_leaders, clip_idm_acceleration, idm_acceleration, steering_control
@@ -95,7 +95,8 @@ def measure(s, c, b: int, observation: np.ndarray, slot_vehicle: np.ndarray, raw
     raw_observation(ego, others, slot_vehicle, c.perception_range, raw)
     for i in range(OBSERVATION_SIZE):
         observation[i] = np.float32(raw[i] / OBSERVATION_SCALE[i])
-    return safety_index(ego, others, slot_vehicle, c.si_sigma, c.si_d_min, c.si_edge_d_min, c.si_n, c.si_k)
+    return scene_safety_index(ego, others, slot_vehicle, c.si_rss, c.si_sigma, c.si_d_min, c.si_edge_d_min, c.si_n,
+                              c.si_k, c.si_rss_parameters)
 
 
 Workspace = namedtuple(

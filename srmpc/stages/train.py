@@ -24,7 +24,7 @@ from omegaconf import OmegaConf
 from srmpc.agents.checkpoint import CHECKPOINT_NAME, POLICY_NAME
 from srmpc.agents.hyperparameters import TrainTask
 from srmpc.agents.report import read_metrics, summarize_training
-from srmpc.config.compose import ConfigError
+from srmpc.config.compose import ConfigError, recorded_config
 from srmpc.config.schema import Config
 from srmpc.output_folder import CONFIG_NAME, SUMMARY_NAME, atomic_write_text
 from srmpc.tracking import Run
@@ -64,7 +64,7 @@ def make_training_env(config: Config):
 def _identity_yaml(cfg_container: dict) -> str:
     """The config.yaml of a training run: agent (without :data:`RESUMABLE_OVERRIDES`) and scenario."""
     agent = {k: v for k, v in cfg_container["agent"].items() if k not in RESUMABLE_OVERRIDES}
-    return OmegaConf.to_yaml({"agent": agent, "scenario": cfg_container["scenario"]})
+    return OmegaConf.to_yaml(recorded_config({"agent": agent, "scenario": cfg_container["scenario"]}))
 
 
 def claim_training_dir(output_dir: Path, identity: str) -> None:

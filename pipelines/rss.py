@@ -1,0 +1,227 @@
+"""DVC stage ``rss``: the safety index built on Responsibility-Sensitive Safety, trained and evaluated against the paper's.
+
+    python -m pipelines.rss
+
+Reads
+- ``results/training/summary.json`` (DVC stage ``training_figure``): end-of-training J_r, J_c, rho_c and v_x of PPO,
+  PPO-L-SI and PPO-L-RSS (3 seeds, Student-t CIs) and of PPO-L-RSS with ad-rss-lib's parameters (seed 0), and the
+  paper's training claim checked for PPO-L-RSS (``paper_claim_ppo_lsi_rss``);
+- ``results/evaluation/rss/<method>_<agent>_<traffic>/`` (DVC stage ``evaluate_rss``): each PPO-L-RSS policy alone
+  (``ppo_lsi``), as SRMPC's proposer at the table's planner config (``srmpc``) and at the recommended setting
+  (``srmpc_recommended``: tracking the rollout, 1 m safety region), 1000 episodes on the table's seeds;
+- the same methods with PPO-L-SI on the same seeds: ``results/evaluation/twin/{ppo_lsi,srmpc}_<traffic>/`` and
+  ``results/evaluation/tradeoff/srmpc_track_rollout_margin_1m_<traffic>/``;
+
+and writes ``results/rss.json`` (parameter sets, training rows, evaluation rows with 95% CIs, paired differences
+RSS minus SI per episode seed, verdicts) and ``results/rss.md`` (the same as tables and sentences).
+
+Verdict of a paired difference with 95% CI [low, high]: for J_c, ``safer`` when high < 0, ``less safe`` when
+low > 0; for v_x, ``faster`` when low > 0, ``slower`` when high < 0; otherwise ``no difference resolved``.
+The recommended parameter set: the one whose SRMPC at the recommended setting has the lower J_c summed over both
+traffic levels (a safety index is for safety), unless its v_x is lower by more than :data:`SPEED_TOLERANCE_MPS`
+in either level.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from pipelines.reporting import ci, experiment_of, method_row, read_config, write_outputs
+from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
+from srmpc.config.compose import compose_config, to_objects
+from srmpc.scenario.safety_index import rss_lateral_distance, rss_longitudinal_distance
+
+TRAINING_SUMMARY = Path("results/training/summary.json")
+RSS = Path("results/evaluation/rss")
+TRAFFIC = ("light", "dense")
+AGENTS = {"ppo_lsi_rss": "PPO-L-RSS", "ppo_lsi_rss_ad_rss_lib": "PPO-L-RSS (ad-rss-lib)"}
+"""The RSS agents (conf/policy/<agent>.yaml) and their labels."""
+PARAMETER_SETS = {"ppo_lsi_rss": ("IEEE 9304756, aggressive", ["+experiment=ppo_lsi_rss"]),
+                  "ppo_lsi_rss_ad_rss_lib": ("intel/ad-rss-lib defaults", ["+experiment=rss_sensitivity/ad_rss_lib"])}
+"""Agent -> (the parameter set's source, the training overrides that compose it)."""
+METHODS = {"ppo_lsi": ("policy", "results/evaluation/twin/ppo_lsi_{traffic}", "ppo_lsi"),
+           "srmpc": ("SRMPC, table planner", "results/evaluation/twin/srmpc_{traffic}", "srmpc"),
+           "srmpc_recommended": ("SRMPC, recommended setting",
+                                 "results/evaluation/tradeoff/srmpc_track_rollout_margin_1m_{traffic}",
+                                 "srmpc_track_rollout")}
+"""Method -> (label, PPO-L-SI's folder on the same seeds, the method name its config.yaml gives)."""
+TRAINING_AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI", **AGENTS}
+SPEED_TOLERANCE_MPS = 0.5
+"""A parameter set is not recommended for a lower J_c if its SRMPC is slower than the other's by more than this."""
+
+
+def parameter_sets() -> dict:
+    """Each RSS parameter set as the training composes it, with its distances at typical highway speeds."""
+    sets = {}
+    for agent, (source, overrides) in PARAMETER_SETS.items():
+        rss = to_objects(compose_config(["stage=train", *overrides])).scenario.safety_index.rss
+        lon = lambda rear, front, rss=rss: rss_longitudinal_distance(  # noqa: E731
+            rear, front, rss.response_time_ego_s, rss.longitudinal_acceleration_max_mps2,
+            rss.longitudinal_brake_min_mps2, rss.longitudinal_brake_max_mps2)
+        sets[agent] = {
+            "source": source, "parameters": vars(rss),
+            "longitudinal_m": {"25_behind_25": lon(25.0, 25.0), "25_behind_20": lon(25.0, 20.0),
+                               "22_behind_22": lon(22.0, 22.0)},
+            "lateral_m": {"both_still": rss_lateral_distance(
+                0.0, 0.0, rss.response_time_ego_s, rss.response_time_others_s, rss.lateral_acceleration_max_mps2,
+                rss.lateral_brake_min_mps2, rss.lateral_margin_m)},
+        }
+    return sets
+
+
+def training_rows(summary: dict) -> dict:
+    keys = ("return", "cost_return", "cost_rate", "vx")
+    return {agent: {**{k: summary[agent][k] for k in keys}, **{f"{k}_ci95": summary[agent][f"{k}_ci95"] for k in keys},
+                    "seeds": summary[agent]["seeds"], "frames": summary[agent]["frames"]}
+            for agent in TRAINING_AGENTS if agent in summary}
+
+
+def folder(path: Path, method: str, traffic: str) -> Path:
+    """``path``, checked against its config.yaml: the method, the traffic and the table's seeds (episode i from i)."""
+    if not (path / "summary.json").is_file():
+        raise SystemExit(f"rss: {path} holds no finished evaluation (run its DVC stage first)")
+    experiment = experiment_of(read_config(path))
+    if (experiment["method"], experiment["traffic"], experiment["seed"]) != (method, traffic, 0):
+        raise SystemExit(f"rss: {path} holds {experiment['method']} in {experiment['traffic']} traffic from seed "
+                         f"{experiment['seed']}, not {method} in {traffic} traffic from seed 0")
+    return path
+
+
+def rss_method_name(method: str, agent: str) -> str:
+    """The name srmpc.tracking.evaluated_method gives ``method`` run with ``agent``'s policy."""
+    return agent if method == "ppo_lsi" else f"{METHODS[method][2]}_{agent}"
+
+
+def difference_verdicts(d: dict) -> dict:
+    low, high = d["mean_event_cost_ci95"]
+    safety = "safer" if high < 0 else "less safe" if low > 0 else "no difference resolved"
+    low, high = d["mean_vx_ci95"]
+    speed = "faster" if low > 0 else "slower" if high < 0 else "no difference resolved"
+    return {"J_c": safety, "v_x": speed}
+
+
+def evaluation(resamples: int, seed: int) -> dict:
+    result: dict = {}
+    for traffic in TRAFFIC:
+        rows: dict = {}
+        for method, (_, si_folder, si_method) in METHODS.items():
+            si_row, si_frame = method_row(folder(Path(si_folder.format(traffic=traffic)), si_method, traffic),
+                                          resamples, seed)
+            rows[f"{method}/ppo_lsi"] = {**si_row, "directory": si_folder.format(traffic=traffic)}
+            for agent in AGENTS:
+                directory = RSS / f"{method}_{agent}_{traffic}"
+                row, frame = method_row(folder(directory, rss_method_name(method, agent), traffic), resamples, seed)
+                difference = paired_differences(frame, si_frame, resamples, seed)
+                rows[f"{method}/{agent}"] = {**row, "directory": str(directory), "minus_ppo_lsi": difference,
+                                             "verdicts": difference_verdicts(difference)}
+        result[traffic] = rows
+    return result
+
+
+def recommendation(rows: dict) -> dict:
+    """The parameter set by the rule of the module docstring, on SRMPC at the recommended setting."""
+    a, b = AGENTS
+    cost = {agent: sum(rows[t][f"srmpc_recommended/{agent}"]["mean_event_cost"] for t in TRAFFIC) for agent in AGENTS}
+    lower, other = (a, b) if cost[a] <= cost[b] else (b, a)
+    slower_by = max(rows[t][f"srmpc_recommended/{other}"]["mean_vx"] - rows[t][f"srmpc_recommended/{lower}"]["mean_vx"]
+                    for t in TRAFFIC)
+    chosen = lower if slower_by <= SPEED_TOLERANCE_MPS else other
+    return {"agent": chosen, "source": PARAMETER_SETS[chosen][0], "summed_J_c": cost,
+            "lower_J_c_is_slower_by_mps": slower_by, "speed_tolerance_mps": SPEED_TOLERANCE_MPS}
+
+
+def markdown(result: dict) -> str:
+    lines = ["# A safety index built on Responsibility-Sensitive Safety (PPO-L-RSS)", "",
+             "The paper's barrier phi = (sigma + d_safe)^n - d^n - k d_dot per observed vehicle, with d_safe the pair's "
+             "RSS distance instead of the constant d_min = 1 m (`scenario.safety_index.kind=rss`, "
+             "`srmpc/scenario/safety_index.py`): same lane, longitudinal "
+             "d = [v_r rho + a_acc rho^2 / 2 + (v_r + rho a_acc)^2 / (2 b_min) - v_f^2 / (2 b_max)]_+ (the vehicle behind "
+             "is the rear one); other lane, lateral d = mu + [(2 v_1 + rho a) rho / 2 + (v_1 + rho a)^2 / (2 b) "
+             "- ((2 v_2 - rho a) rho / 2 - (v_2 - rho a)^2 / (2 b))]_+ (vehicle 1 the left one). Road edges keep the "
+             "paper's term. Everything else is PPO-L-SI's (conf/agent/ppo_lsi.yaml), 20M environment steps per seed.", "",
+             "## Parameter sets", "",
+             "| agent | source | rho ego / others [s] | a_acc / b_min / b_max [m/s^2] | lateral a / b [m/s^2], mu [m] "
+             "| d_lon 25 behind 25 m/s [m] | d_lon 25 behind 20 m/s [m] | d_lat, both still [m] |",
+             "|---|---|---|---|---|---|---|---|"]
+    for agent, s in result["parameter_sets"].items():
+        p = s["parameters"]
+        lines.append(
+            f"| {AGENTS[agent]} | {s['source']} | {p['response_time_ego_s']} / {p['response_time_others_s']} | "
+            f"{p['longitudinal_acceleration_max_mps2']} / {p['longitudinal_brake_min_mps2']} / "
+            f"{p['longitudinal_brake_max_mps2']} | {p['lateral_acceleration_max_mps2']} / "
+            f"{p['lateral_brake_min_mps2']}, {p['lateral_margin_m']} | {s['longitudinal_m']['25_behind_25']:.1f} | "
+            f"{s['longitudinal_m']['25_behind_20']:.1f} | {s['lateral_m']['both_still']:.2f} |")
+    lines += ["", "The paper's index asks for sigma + d_min = 1.5 m plus k = 1 s times the closing speed, whatever the "
+              "speeds.", "", "## Training (end of training: the last 5% of the 20M steps; mean over seeds, 95% Student-t CI)",
+              "", "| agent | seeds | J_r | J_c | rho_c | v_x [m/s] |", "|---|---|---|---|---|---|"]
+    for agent, r in result["training"].items():
+        cell = lambda key, digits, r=r: (f"{r[key]:.{digits}f}" + (  # noqa: E731
+            f" [{r[f'{key}_ci95'][0]:.{digits}f}, {r[f'{key}_ci95'][1]:.{digits}f}]" if r[f"{key}_ci95"] else ""))
+        lines.append(f"| {TRAINING_AGENTS[agent]} | {len(r['seeds'])} | {cell('return', 0)} | {cell('cost_return', 3)} "
+                     f"| {cell('cost_rate', 6)} | {cell('vx', 2)} |")
+    claim = result["training_claim"]
+    lines += ["", f"The paper's training claim for PPO-L-RSS ({claim['statement']}): **{'holds' if claim['holds'] else 'fails'}**"
+              f" (cost-rate ratio PPO-L-RSS / PPO {claim['cost_rate_ratio_rss_over_ppo']:.2f}, return difference "
+              f"{claim['return_difference_rss_minus_ppo']:+.0f}; per seed: "
+              + ", ".join(f"seed {s}: {'holds' if v['holds'] else 'fails'}" for s, v in claim["per_seed"].items()) + ")."]
+    lines += ["", "## Evaluation (1000 episodes per traffic level on the table's seeds; 95% CIs)", ""]
+    for traffic in TRAFFIC:
+        rows = result["evaluation"][traffic]
+        lines += [f"### {traffic} traffic", "", "| method | proposer / policy | J_r | J_c | rho_c | v_x [m/s] |",
+                  "|---|---|---|---|---|---|"]
+        for key, r in rows.items():
+            method, agent = key.split("/")
+            lines.append(f"| {METHODS[method][0]} | {TRAINING_AGENTS[agent]} | {ci(r, 'mean_return', 0)} | "
+                         f"{ci(r, 'mean_event_cost', 3)} | {ci(r, 'cost_rate', 4)} | {ci(r, 'mean_vx', 2)} |")
+        lines += ["", "Paired differences, RSS minus PPO-L-SI on the same seeds (mean [95% CI]):", "",
+                  "| method | proposer / policy | ΔJ_r | ΔJ_c | Δv_x [m/s] | verdict |", "|---|---|---|---|---|---|"]
+        for key, r in rows.items():
+            if "minus_ppo_lsi" not in r:
+                continue
+            method, agent = key.split("/")
+            d, v = r["minus_ppo_lsi"], r["verdicts"]
+            sign = lambda key, digits, d=d: (f"{d[key]:+.{digits}f} [{d[f'{key}_ci95'][0]:+.{digits}f}, "  # noqa: E731
+                                             f"{d[f'{key}_ci95'][1]:+.{digits}f}]")
+            lines.append(f"| {METHODS[method][0]} | {TRAINING_AGENTS[agent]} | {sign('mean_return', 0)} | "
+                         f"{sign('mean_event_cost', 3)} | {sign('mean_vx', 2)} | {v['J_c']}, {v['v_x']} |")
+        lines.append("")
+    rec = result["recommendation"]
+    lines += ["## Verdicts", ""] + [f"- {v}" for v in result["verdicts"]] + [
+        f"- Recommended parameter set: **{rec['source']}** ({AGENTS[rec['agent']]}): the lower J_c of SRMPC at the "
+        f"recommended setting summed over both traffic levels ({rec['summed_J_c'][rec['agent']]:.3f}), unless that "
+        f"costs more than {rec['speed_tolerance_mps']} m/s of v_x (the rule of pipelines/rss.py). "
+        "ad-rss-lib's set was trained on one seed only."]
+    return "\n".join(lines) + "\n"
+
+
+def verdicts(result: dict) -> list[str]:
+    out = []
+    for traffic in TRAFFIC:
+        rows = result["evaluation"][traffic]
+        for method, (label, _, _) in METHODS.items():
+            v = rows[f"{method}/ppo_lsi_rss"]["verdicts"]
+            out.append(f"{traffic}, {label}: PPO-L-RSS against PPO-L-SI is {v['J_c']} (J_c) and {v['v_x']} (v_x).")
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--resamples", type=int, default=BOOTSTRAP_RESAMPLES, help="bootstrap resamples")
+    parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
+    args = parser.parse_args()
+    summary = json.loads(TRAINING_SUMMARY.read_text())
+    if "paper_claim_ppo_lsi_rss" not in summary:
+        raise SystemExit(f"rss: {TRAINING_SUMMARY} has no PPO-L-RSS (run DVC stages train_rss, training_figure first)")
+    result = {"parameter_sets": parameter_sets(), "training": training_rows(summary),
+              "training_claim": summary["paper_claim_ppo_lsi_rss"], "evaluation": evaluation(args.resamples, args.seed)}
+    result["verdicts"] = verdicts(result)
+    result["recommendation"] = recommendation(result["evaluation"])
+    text = markdown(result)
+    write_outputs({Path("results/rss.md"): text, Path("results/rss.json"): json.dumps(result, indent=2) + "\n"})
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
