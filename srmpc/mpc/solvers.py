@@ -234,6 +234,10 @@ class OsqpNativeSolver:
         return QpSolution(solved, str(result.info.status), z, int(result.info.iter))
 
 
+WARM_START_BY_DEFAULT = False
+"""Whether ``riccati_ipm`` starts from the shifted previous solution unless told otherwise (see the class)."""
+
+
 class RiccatiInteriorPointSolver:
     """``riccati_interior_point`` on the QP's stage-wise data, in arrays allocated once.
 
@@ -242,16 +246,21 @@ class RiccatiInteriorPointSolver:
     warm start fails) from the linearization inputs, clipped into their box, rolled out through the
     linearized dynamics. Any status other than solved is a failed solve (the planner's fallback chain
     takes over).
+
+    The warm start is off by default (:data:`WARM_START_BY_DEFAULT`): it changes the planner's floats, so it
+    is switched on together with a regeneration of every planner-based evaluation. Off, every plan is bit for
+    bit the committed evaluations' (``tests/mpc/test_compiled_step.py``).
     """
 
     name = "riccati_ipm"
     accepts_warm_start = False
 
     def __init__(self, tolerance: float = RICCATI_IPM_TOLERANCE,
-                 max_iterations: int = RICCATI_IPM_MAX_ITERATIONS, warm_start: bool = True) -> None:
+                 max_iterations: int = RICCATI_IPM_MAX_ITERATIONS,
+                 warm_start: bool | None = None) -> None:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
-        self.warm_start = bool(warm_start)
+        self.warm_start = WARM_START_BY_DEFAULT if warm_start is None else bool(warm_start)
         self.warm_start_settings = WARM_START_SETTINGS
         self.last_started_warm = False
         self._constants_for: LtvMpcQp | None = None
