@@ -15,6 +15,9 @@ the observed vehicles (leader/follower per lane within the perception range, at 
 as ``srmpc/controllers/ltv_mpc.py`` feeds it. An episode that ends in a collision or road exit
 stops there for that solver (counted in ``episodes_ended_by_collision_or_offroad``).
 
+The default solver runs with its warm start on (its default is off until the planner evaluations are
+regenerated with it); the same QPs are re-solved cold for the iteration counts.
+
 Usage: python benchmarks/mpc_latency.py [--steps 200] [--episodes 2] [--out PATH]
 """
 
@@ -71,12 +74,16 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
     """All solvers drive their own copy of each episode in lockstep: at every step each solver
     plans once (in an order rotating with the step), so machine-load changes hit all alike."""
     reference_solver = make_solver("clarabel")
+    same_qp_solvers = {"piqp_native": make_solver("piqp_native"), "cold": make_solver(DEFAULT_SOLVER, warm_start=False)}
     records = {name: {"step": [], "solve": [], "err": [], "it": [], "outcomes": Counter(),
-                      "collisions": 0} for name in names}
+                      "collisions": 0, "same_qp": {"piqp_native": [], "cold": [], "cold_it": []}} for name in names}
     for scene_name, spacing in SCENES.items():
         for episode in range(episodes):
             seed = 1000 * episode + (0 if scene_name == "light" else 1)
             controllers = {name: LtvMpcController(LtvMpcPlanner(config, solver=name)) for name in names}
+            for controller in controllers.values():  # the warm start on, as the targets assume
+                if controller.planner.solver.name == DEFAULT_SOLVER:
+                    controller.planner.solver.warm_start = True
             params = ScenarioParameters(traffic=scene_name, mean_spawn_gap_m=spacing,
                                         vehicles_count=OTHERS_PER_SCENE, episode_steps=steps)
             scenes = {name: TwinScenarioEnv(params) for name in names}
@@ -98,6 +105,8 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
                     record["outcomes"][report.outcome.value] += 1
                     if report.iterations is not None:
                         record["it"].append(report.iterations)
+                    if report.plan.outcome.value == "solved" and name == DEFAULT_SOLVER and step >= WARMUP_STEPS:
+                        same_qp(controller.planner.qp, same_qp_solvers, record["same_qp"])
                     if report.plan.outcome.value == "solved":
                         qp = controller.planner.qp
                         reference = reference_solver.solve(qp)
@@ -108,8 +117,26 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
                     if terminated:  # collision or road exit
                         record["collisions"] += 1
                         running.discard(name)
-    return {name: _summary(r["step"], r["solve"], r["err"], r["it"], r["outcomes"],
-                           r["collisions"]) for name, r in records.items()}
+    summaries = {name: _summary(r["step"], r["solve"], r["err"], r["it"], r["outcomes"],
+                                r["collisions"]) for name, r in records.items()}
+    default, same = summaries[DEFAULT_SOLVER], records[DEFAULT_SOLVER]["same_qp"]
+    default["iterations_p99"] = float(np.percentile(records[DEFAULT_SOLVER]["it"], 99))
+    default["iterations_cold_median"] = float(np.median(same["cold_it"]))
+    default["iterations_cold_p99"] = float(np.percentile(same["cold_it"], 99))
+    default["same_qps"] = {key: float(np.median(same[key])) for key in ("piqp_native", "cold")}
+    default["same_qps"]["note"] = ("median solve time [us] of the default solver's own QPs re-solved (outside the "
+                                   "step timing) by piqp_native and by the cold-started riccati_ipm")
+    return summaries
+
+
+def same_qp(qp, solvers: dict, record: dict) -> None:
+    """Re-solve the default solver's QP by piqp_native and the cold-started riccati_ipm: times [us], iterations."""
+    for key, solver in solvers.items():
+        start = time.perf_counter()
+        solution = solver.solve(qp)
+        record[key].append((time.perf_counter() - start) * 1e6)
+        if key == "cold" and solution.iterations is not None:
+            record["cold_it"].append(solution.iterations)
 
 
 def main() -> None:
@@ -144,7 +171,14 @@ def main() -> None:
                     "ratio_to_target": {"median": default["median_us"] / TARGET_MEDIAN_US,
                                         "p99": default["p99_us"] / TARGET_P99_US},
                     "solve_median_ratio_vs_" + BASELINE_SOLVER:
-                        default["solve_median_us"] / baseline["solve_median_us"]},
+                        default["solve_median_us"] / baseline["solve_median_us"],
+                    "solve_median_ratio_vs_piqp_native_same_qps":
+                        default["solve_median_us"] / default["same_qps"]["piqp_native"],
+                    "iterations": {"cold_median": default["iterations_cold_median"],
+                                   "cold_p99": default["iterations_cold_p99"],
+                                   "warm_median": default["iterations_median"],
+                                   "warm_p99": default["iterations_p99"]},
+                    "u0_err_max_vs_clarabel": default["u0_err_max"]},
         "scenes": {
             "source": "srmpc.sim.single_env.TwinScenarioEnv (twin scenes of the scenario; episode e: "
                       "reset(seed=1000 e) light, reset(seed=1000 e + 1) dense)",

@@ -12,7 +12,9 @@ rollout of the same scenes in the twin and in highway-env in this run. The paper
 Method: light and dense twin episodes (the committed config, seeds ``1000 e`` / ``1000 e + 1``) are
 driven by the paper's SRMPC; at every step each controller (each with its own previous solution)
 computes its action from that same scene, in an order that rotates every step. Process pinned to one
-core, numba and torch on one thread; the first ``--warmup`` steps of each episode are not timed.
+core, numba and torch on one thread; the first ``--warmup`` steps of each episode are not timed. The
+planners run with the interior point's warm start on (``riccati_ipm``'s default is off until the planner
+evaluations are regenerated with it; ``same_qp`` re-solves each QP cold for the iteration counts).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import torch
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.controller_factory import build_controller
 from srmpc.controllers.srmpc import SrmpcController
+from srmpc.mpc.solvers import make_solver
 from srmpc.sim.single_env import TwinScenarioEnv
 
 OUTPUT = Path("results/benchmarks/srmpc_latency.json")
@@ -72,7 +75,12 @@ def run(traffic: str, episodes: int, steps: int, warmup: int) -> dict[str, dict[
     configs = {name: to_objects(compose_config(base + overrides)) for name, overrides in CONTROLLERS.items()}
     env = TwinScenarioEnv(configs["srmpc"].scenario)
     controllers = {name: build_controller(config, env) for name, config in configs.items()}
+    for controller in controllers.values():  # the warm start on, as the targets assume (off by default)
+        if hasattr(controller, "planner") and hasattr(controller.planner.solver, "warm_start"):
+            controller.planner.solver.warm_start = True
     samples = {name: {"step": [], "rollout": [], "qp_update": [], "solve": []} for name in controllers}
+    same_qp = {"iterations_warm": [], "iterations_cold": [], "solve_us": [], "piqp_native_us": []}
+    same_qp_solvers = {"cold": make_solver("riccati_ipm", warm_start=False), "piqp_native": make_solver("piqp_native")}
     names = list(controllers)
     for episode in range(episodes):
         observation, _ = env.reset(seed=1000 * episode + (traffic == "dense"))
@@ -91,10 +99,25 @@ def run(traffic: str, episodes: int, steps: int, warmup: int) -> dict[str, dict[
                     for key, value in (("step", elapsed_us), ("rollout", rollout_us), ("qp_update", qp_update_us),
                                        ("solve", solve_us)):
                         samples[name][key].append(value)
+            plan = controllers["srmpc"].last_plan
+            if step >= warmup and plan.iterations is not None and plan.reference_source.value == "given":
+                record_same_qp(controllers["srmpc"], same_qp_solvers, same_qp)
             observation, _, terminated, truncated, _ = env.step(actions["srmpc"])
             if terminated or truncated:
                 break
+    samples["srmpc"]["same_qp"] = same_qp
     return samples
+
+
+def record_same_qp(controller, solvers: dict, record: dict) -> None:
+    """SRMPC's solved policy QP re-solved (outside the step timing) cold by riccati_ipm and by piqp_native."""
+    qp = controller.planner.qp
+    record["iterations_warm"].append(controller.last_plan.iterations)
+    record["solve_us"].append(controller.last_timing.solve_us)
+    record["iterations_cold"].append(solvers["cold"].solve(qp).iterations)
+    start = time.perf_counter()
+    solvers["piqp_native"].solve(qp)
+    record["piqp_native_us"].append((time.perf_counter() - start) * 1e6)
 
 
 def rollout_vs_highway_env(scenario, policy, scenes: int, warm_steps: int = 10) -> dict:
@@ -149,6 +172,18 @@ def targets(per_controller: dict) -> dict:
     return result
 
 
+def same_qp_summary(same_qp: dict) -> dict:
+    """IPM iterations warm (as run) and cold (the same QPs), and the solve against piqp_native on the same QPs."""
+    def stats(values):
+        return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99))}
+    return {"ipm_iterations_warm": stats(same_qp["iterations_warm"]),
+            "ipm_iterations_cold": stats(same_qp["iterations_cold"]),
+            "solve_median_us": float(np.median(same_qp["solve_us"])),
+            "piqp_native_median_us": float(np.median(same_qp["piqp_native_us"])),
+            "solve_over_piqp_native": float(np.median(same_qp["solve_us"]) / np.median(same_qp["piqp_native_us"])),
+            "n_qps": len(same_qp["solve_us"])}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=4, help="episodes per traffic level")
@@ -162,13 +197,18 @@ def main() -> None:
     torch.set_num_threads(1)
     load_before = os.getloadavg()
     merged: dict[str, dict[str, list[float]]] = {name: {} for name in CONTROLLERS}
+    same_qp: dict[str, list[float]] = {}
     per_traffic = {}
     for traffic in ("light", "dense"):
         samples = run(traffic, args.episodes, args.steps, args.warmup)
         per_traffic[traffic] = {name: percentiles(s["step"]) for name, s in samples.items()}
         for name, series in samples.items():
             for key, values in series.items():
-                merged[name].setdefault(key, []).extend(values)
+                if key == "same_qp":
+                    for part, part_values in values.items():
+                        same_qp.setdefault(part, []).extend(part_values)
+                else:
+                    merged[name].setdefault(key, []).extend(values)
     per_controller = {}
     for name, series in merged.items():
         row = percentiles(series["step"])
@@ -187,7 +227,7 @@ def main() -> None:
         "per_traffic": per_traffic,
         "targets_us": {"srmpc": TARGETS_US},
         "srmpc_meets_targets": per_controller["srmpc"]["meets_targets"],
-        "targets": targets(per_controller),
+        "targets": {**targets(per_controller), "srmpc_same_qps": same_qp_summary(same_qp)},
         "rollout_vs_highway_env": rollout_vs_highway_env(
             to_objects(compose_config(["+experiment=dense_traffic"])).scenario,
             build_controller(to_objects(compose_config(["+experiment=dense_traffic", "tracking.enabled=false",

@@ -230,7 +230,7 @@ def evaluated_method(evaluation: Mapping[str, Any], srmpc: Mapping[str, Any]) ->
     if method in ("ppo", "ppo_lsi") and policy_path and Path(policy_path).name == "policy.pt":
         method = _agent_of(policy_path)
     proposer_path = srmpc.get("policy_path")
-    if method.startswith("srmpc") and proposer_path and Path(proposer_path).name == "policy.pt":
+    if method and method.startswith("srmpc") and proposer_path and Path(proposer_path).name == "policy.pt":
         proposer = _agent_of(proposer_path)
         if proposer != _plain(srmpc.get("policy")):
             method = f"{method}_{proposer}"

@@ -150,3 +150,18 @@ def test_config_selects_the_index_and_records_rss_only_when_selected():
         compose_config(["scenario.safety_index.rss.longitudinal_brake_min_mps2=0"])
     with pytest.raises(ConfigError, match="response_time_others_s"):
         compose_config(["scenario.safety_index.rss.response_time_others_s=11"])
+
+
+def test_twin_constants_carry_the_rss_parameters_in_their_order():
+    from srmpc.scenario.parameters import ScenarioParameters
+    from srmpc.sim.constants import sim_constants
+
+    rss = RssParameters(response_time_ego_s=1.0, response_time_others_s=2.0, longitudinal_acceleration_max_mps2=3.0,
+                        longitudinal_brake_min_mps2=4.0, longitudinal_brake_max_mps2=5.0,
+                        lateral_acceleration_max_mps2=0.6, lateral_brake_min_mps2=0.7, lateral_margin_m=0.8)
+    c = sim_constants(ScenarioParameters(safety_index=SafetyIndexParameters(kind=SafetyIndexKind.rss, rss=rss)))
+    assert c.si_rss is True
+    assert (c.rss_response_time_ego, c.rss_response_time_others, c.rss_longitudinal_acceleration_max,
+            c.rss_longitudinal_brake_min, c.rss_longitudinal_brake_max, c.rss_lateral_acceleration_max,
+            c.rss_lateral_brake_min, c.rss_lateral_margin) == rss.as_tuple()
+    assert sim_constants(ScenarioParameters()).si_rss is False

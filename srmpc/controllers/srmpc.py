@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from srmpc.controllers.outcomes import OUTCOME_KEYS, POLICY_FAILED, REFERENCE_OUTCOMES
+from srmpc.mpc.compiled_step import STEP_REJECTED, STEP_ROLLOUT_FAILED, CompiledPlannerStep, status_name
 from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, ReferenceSource
 from srmpc.sim.constants import SimConstants
@@ -159,22 +160,27 @@ class SrmpcController:
         # 1. measure
         ego = np.asarray(scene.ego, dtype=np.float64)
         observed = scene.slot_vehicle[scene.slot_vehicle >= 0]
-        # 2. the policy's rollout in a copy of the scene
-        policy_rollout = self.policy_rollout()
+        # 2.-3. the policy's rollout in a copy of the scene and the QP about it (one compiled call on
+        # the default variant; the parts below otherwise)
+        compiled, compiled_plan = self.compiled_step(), None
+        if compiled is not None:
+            policy_rollout, plan, status = self.compiled_rollout_and_qp(compiled, ego, scene)
+            compiled_plan = plan
+        else:
+            policy_rollout, plan, status = self.policy_rollout(), None, "no policy reference"
         rollout_end = time.perf_counter()
         if policy_rollout is None:
             self.outcomes[POLICY_FAILED] += 1
         if policy_rollout is not None and self.settings.prediction is OtherVehiclePrediction.policy_rollout:
             predicted = policy_rollout.others[0][:, observed]
-        else:
+        elif plan is None or self.settings.selection is ReferenceSelection.best_of_two:
             predicted = self.planner.predict(scene.others[observed])
         tracking = self.tracking_reference
         if policy_rollout is not None and self.settings.tracking is TrackingTarget.policy_rollout:
             tracking = policy_rollout.ego[0]
         # 3. QP about the policy's reference (+ re-linearizations)
-        candidates: list[Plan] = []
-        status = "no policy reference"
-        if policy_rollout is not None:
+        candidates: list[Plan] = [plan] if plan is not None else []
+        if policy_rollout is not None and compiled is None:
             plan, status = self.solve_about(ego, predicted, tracking, policy_rollout.ego[0],
                                             policy_rollout.actions[0], ReferenceSource.GIVEN)
             if plan is not None:
@@ -198,13 +204,48 @@ class SrmpcController:
         self.last_input = plan.first_input.copy()
         self.last_rollout, self.last_plan = policy_rollout, plan
         end = time.perf_counter()
-        solve_s = sum(p.solve_time_s for p in self._solved_this_step)
+        solve_s = sum(p.solve_time_s for p in self._solved_this_step if p is not compiled_plan)
+        rollout_s = rollout_end - start
+        if compiled is not None:  # the compiled call's stages, by the cycle counter
+            stage_us = compiled.stage_us()
+            rollout_s, solve_s = stage_us[0] * 1e-6, solve_s + stage_us[2] * 1e-6
         self.last_timing = SrmpcStepTiming(
-            rollout_us=(rollout_end - start) * 1e6, qp_update_us=(end - rollout_end - solve_s) * 1e6,
+            rollout_us=rollout_s * 1e6, qp_update_us=(end - start - rollout_s - solve_s) * 1e6,
             solve_us=solve_s * 1e6, step_us=(end - start) * 1e6)
         return self.last_input.copy()
 
     # ------------------------------------------------------------------ the parts
+    def compiled_step(self) -> CompiledPlannerStep | None:
+        """The planner's compiled step if this variant is the default one (Algorithm 1 as the paper:
+        policy_first, constant-velocity prediction, no re-linearization, lane-centre tracking) and the
+        policy a 2-hidden-layer ``MlpPolicy``; else None (the Python parts)."""
+        settings = self.settings
+        if not (isinstance(self.policy, MlpPolicy) and len(self.policy.weights) == 3
+                and settings.selection is ReferenceSelection.policy_first
+                and settings.prediction is OtherVehiclePrediction.constant_velocity
+                and settings.relinearizations == 0 and settings.tracking is TrackingTarget.lane_centre):
+            return None
+        return self.planner.compiled_step()
+
+    def compiled_rollout_and_qp(self, compiled: CompiledPlannerStep, ego: np.ndarray,
+                                scene) -> tuple[Rollout | None, Plan | None, str]:
+        """Steps 2-3 as one compiled call: (the rollout or None if it failed, the accepted plan or None,
+        the solver status)."""
+        try:
+            state, constants = self.scene_source()
+            outcome, status, iterations, _ = compiled.srmpc(
+                state, constants, self.policy, ego, np.ascontiguousarray(scene.others, dtype=np.float64),
+                np.ascontiguousarray(scene.slot_vehicle, dtype=np.int64), self.last_input, self.tracking_reference)
+        except Exception:  # noqa: BLE001 - Algorithm 1: any error in the rollout falls back
+            return None, None, "no policy reference"
+        if outcome == STEP_ROLLOUT_FAILED:
+            return None, None, "no policy reference"
+        policy_rollout = Rollout(*(array.copy() for array in compiled.last_rollout()))
+        plan = self.planner.compiled_plan(compiled, outcome, status, iterations, ReferenceSource.GIVEN)
+        if plan is not None:
+            self._solved_this_step.append(plan)
+        return policy_rollout, plan, "solved" if outcome == STEP_REJECTED else status_name(status)
+
     def policy_rollout(self) -> Rollout | None:
         """The policy's N-step rollout from the current scene, or None if it raised or is non-finite."""
         record_others = self.settings.prediction is OtherVehiclePrediction.policy_rollout

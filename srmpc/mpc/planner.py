@@ -23,10 +23,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from srmpc.mpc.compiled_step import STEP_REJECTED, STEP_SOLVED, CompiledPlannerStep, status_name
 from srmpc.mpc.ocp import LANE_CENTRES_M, OcpConfig, lane_keeping_tracking_reference
 from srmpc.mpc.prediction import TrafficPredictor, predict_constant_velocity
 from srmpc.mpc.qp_builder import LtvMpcQp
-from srmpc.mpc.solvers import DEFAULT_SOLVER, QpSolution, QpSolver, make_solver
+from srmpc.mpc.solvers import DEFAULT_SOLVER, QpSolution, QpSolver, RiccatiInteriorPointSolver, make_solver
 from srmpc.mpc.vehicle_model import INPUT_DIM, STATE_DIM
 
 LANE_HOLD_LATERAL_GAIN_1_S = 0.6
@@ -123,7 +124,17 @@ class LtvMpcPlanner:
         self._input_upper = np.array([self.config.steering_bounds_rad[1],
                                       self.config.acceleration_bounds_m_s2[1]])
         self._default_tracking = lane_keeping_tracking_reference(horizon)
+        self._no_inputs = np.zeros((horizon, INPUT_DIM))
+        self._compiled: CompiledPlannerStep | None = None
         self.reset()
+
+    def compiled_step(self) -> CompiledPlannerStep | None:
+        """The one-call compiled step (``compiled_step``) if this planner's default path can take it
+        (the ``riccati_ipm`` solver, constant-velocity prediction), else None (the Python path)."""
+        if self._compiled is None and isinstance(self.solver, RiccatiInteriorPointSolver) \
+                and self.predictor is predict_constant_velocity:
+            self._compiled = CompiledPlannerStep(self, INPUT_BOUND_TOLERANCE)
+        return self._compiled
 
     def reset(self) -> None:
         """Forget the previous plan and warm starts (new episode)."""
@@ -209,6 +220,11 @@ class LtvMpcPlanner:
         """
         start = time.perf_counter()
         ego_state = np.asarray(ego_state, dtype=np.float64).reshape(STATE_DIM)
+        compiled = self.compiled_step() if linearization_reference is None else None
+        if compiled is not None:
+            plan = self._plan_compiled(compiled, ego_state, others, last_input, tracking_reference)
+            plan.step_time_s = time.perf_counter() - start
+            return plan
         if linearization_reference is not None:
             ref_states, ref_inputs = linearization_reference
             source = ReferenceSource.GIVEN
@@ -223,6 +239,42 @@ class LtvMpcPlanner:
             plan = self.fallback(ego_state, source, status)
         plan.step_time_s = time.perf_counter() - start
         return plan
+
+    def _plan_compiled(self, compiled: CompiledPlannerStep, ego_state, others, last_input,
+                       tracking_reference) -> Plan:
+        """:meth:`plan` about the default reference as one compiled call, then the fallback chain."""
+        source, shift, previous = ReferenceSource.LANE_FOLLOWING, 0, self._no_inputs
+        if self.last_solved_plan is not None and self.steps_since_solved < self.config.horizon:
+            source, shift = ReferenceSource.SHIFTED_PREVIOUS, 1 + self.steps_since_solved
+            previous = self.last_solved_plan.inputs
+        others = np.ascontiguousarray(others, dtype=np.float64).reshape(-1, STATE_DIM)
+        outcome, status, iterations, _ = compiled.ltv_mpc(
+            ego_state, others, np.asarray(last_input, dtype=np.float64).reshape(INPUT_DIM),
+            self._checked_tracking(tracking_reference), previous, shift)
+        plan = self.compiled_plan(compiled, outcome, status, iterations, source)
+        if plan is None:
+            return self.fallback(ego_state, source, "solved" if outcome == STEP_REJECTED else status_name(status))
+        self.accept(plan)
+        return plan
+
+    def compiled_plan(self, compiled: CompiledPlannerStep, outcome: int, status: int, iterations: int,
+                      source: ReferenceSource) -> Plan | None:
+        """The plan of an accepted compiled step (copies of its solution), else None."""
+        if outcome != STEP_SOLVED:
+            return None
+        states, inputs, slacks, sigmas = compiled.plan_arrays()
+        plan = Plan(states, inputs, StepOutcome.SOLVED, source, status_name(status), iterations, slacks, sigmas)
+        plan.solve_time_s = float(compiled.stage_us()[2]) * 1e-6
+        return plan
+
+    def _checked_tracking(self, tracking_reference: np.ndarray | None) -> np.ndarray:
+        """x^ref as a (N + 1, 4) float array (the default lane keeping if None)."""
+        if tracking_reference is None:
+            return self._default_tracking
+        tracking_reference = np.asarray(tracking_reference, dtype=np.float64)
+        if tracking_reference.shape != (self.config.horizon + 1, STATE_DIM):
+            raise ValueError(f"tracking_reference must have shape {(self.config.horizon + 1, STATE_DIM)}")
+        return tracking_reference
 
     def solve_about(
         self,
@@ -243,11 +295,7 @@ class LtvMpcPlanner:
         horizon = self.config.horizon
         ego_state = np.asarray(ego_state, dtype=np.float64).reshape(STATE_DIM)
         last_input = np.asarray(last_input, dtype=np.float64).reshape(INPUT_DIM)
-        if tracking_reference is None:
-            tracking_reference = self._default_tracking
-        tracking_reference = np.asarray(tracking_reference, dtype=np.float64)
-        if tracking_reference.shape != (horizon + 1, STATE_DIM):
-            raise ValueError(f"tracking_reference must have shape {(horizon + 1, STATE_DIM)}")
+        tracking_reference = self._checked_tracking(tracking_reference)
         ref_states = np.array(ref_states, dtype=np.float64)
         ref_inputs = np.asarray(ref_inputs, dtype=np.float64)
         if ref_states.shape != (horizon + 1, STATE_DIM) or ref_inputs.shape != (horizon, INPUT_DIM):

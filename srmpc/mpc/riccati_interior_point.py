@@ -47,8 +47,9 @@ dynamics multipliers nu recovered by the backward recursion nu_k = A_k^T nu_{k+1
 <= tol (1 + scale), mean complementarity mu <= tol.  Returns a status code; anything other than
 ``STATUS_SOLVED`` must be treated as a failed solve.
 
-Code layout: ``solve_ltv_mpc_qp`` reads as the method's steps -- active inequalities, starting
-point, then per iteration ``_residuals`` and ``_convergence_status``, ``_factorize_newton_matrix``
+Code layout: ``solve_cold_in`` reads as the method's steps -- active inequalities
+(``prepare_inequalities``), starting point (``cold_start``; ``interior_point_warm_start`` has the warm
+one), then ``iterate``: per iteration ``_residuals`` and ``_convergence_status``, ``_factorize_newton_matrix``
 (D, stage Hessians, Riccati factorization, Schur complement on s), ``_newton_direction`` for the
 predictor and the corrector (``_mehrotra_centering`` between them), ``_step_lengths`` and
 ``_update_iterate``.  The steps are compiled functions that receive the solver's arrays grouped
@@ -56,7 +57,8 @@ in the named tuples ``_Qp`` (the QP data), ``_Primal`` (a point or a direction),
 ``_Inequalities``, ``_Gradients`` and ``_Newton``; each unpacks what it needs and calls helpers
 on plain arrays that are compiled into it (``inline="always"``).  Tuples passed into inlined
 helpers, or compiled calls out of a step, leave numba reference-count updates on every array per
-call that its pruning pass cannot remove (they cost about 15% of the solve time).
+call that its pruning pass cannot remove (they cost about 15% of the solve time).  All arrays are
+allocated once (``allocate_workspace``); ``solve_ltv_mpc_qp`` allocates them per call.
 """
 
 from __future__ import annotations
@@ -105,6 +107,11 @@ _Inequalities = namedtuple("_Inequalities", [
 r_p = a^T w - b - t, gamma, the step (dt, dz) and the predictor's (dt_aff, dz_aff); zero_rows
 (N, V) and zero_bounds (8,) make ``_constraint_values`` of a direction give C dw; 1 / t and
 1 / z (m,) at the current point (0 on inactive rows)."""
+_InequalityArrays = namedtuple("_InequalityArrays", [
+    "active", "has_sigma", "values", "t", "z", "d", "residuals", "gamma", "dt", "dz", "dt_aff",
+    "dz_aff", "t_inverse", "z_inverse", "spare", "zero_rows", "zero_bounds"])
+"""The arrays of ``_Inequalities`` (``spare`` (m,): scratch of the warm start), allocated once
+(``allocate_workspace``)."""
 _Gradients = namedtuple("_Gradients", ["states", "inputs", "slacks", "sigmas", "model_states",
                                        "model_inputs", "model_slacks", "nu", "nu_next"])
 """grad f on x_1..N (N, 4), u (N, 2), s (V,), sigma (N, V); the model gradient grad f - C^T gamma
@@ -433,15 +440,16 @@ def _objective_gradient(states, inputs, slacks, sigmas, tracking_reference, last
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _active_inequalities(sigma_upper, n_observed, offsets, horizon, n_slots):
+def _active_inequalities(sigma_upper, n_observed, offsets, active, has_sigma):
     """Which inequalities exist: rows and slacks of observed slots, safety-slack boxes wider than
     ``SIGMA_BOX_MIN_WIDTH``, all state and input bounds.
 
-    Returns (active (m,) bool, has_sigma (N, V) bool, n_active).
+    Writes active (m,) bool and has_sigma (N, V) bool; returns n_active.
     """
     (o_row, o_slo, o_sglo, o_sghi, o_ylo, _, _, _, _, _, m) = offsets
-    active = np.zeros(m, dtype=np.bool_)
-    has_sigma = np.zeros((horizon, n_slots), dtype=np.bool_)
+    horizon, n_slots = has_sigma.shape
+    active[:] = False
+    has_sigma[:, :] = False
     for j in range(n_observed):
         active[o_slo + j] = True
         for k in range(horizon):
@@ -457,7 +465,7 @@ def _active_inequalities(sigma_upper, n_observed, offsets, horizon, n_slots):
     for i in range(m):
         if active[i]:
             n_active += 1
-    return active, has_sigma, n_active
+    return n_active
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -498,30 +506,31 @@ def _starting_point(qp, measured_state, initial_inputs, has_sigma, point):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _starting_inequalities(qp, point, offsets, active, has_sigma, n_active):
-    """The ``_Inequalities`` at the starting point: a^T w_0 - b, t_0 = max(a^T w_0 - b,
-    ``INITIAL_SLACK``) and z_0 = ``INITIAL_MULTIPLIER`` where active (t = 1, z = 0 elsewhere);
-    the other vectors allocated."""
-    horizon, n_slots = qp.state_matrices.shape[0], qp.coefficients.shape[1]
-    m = offsets[10]
-    values = np.empty(m)
+def _starting_inequalities(qp, point, ineq):
+    """The cold start of the inequalities: a^T w_0 - b, t_0 = max(a^T w_0 - b, ``INITIAL_SLACK``)
+    and z_0 = ``INITIAL_MULTIPLIER`` where active (t = 1, z = 0 elsewhere)."""
+    values, active, t, z = ineq.values, ineq.active, ineq.t, ineq.z
     _constraint_values(point.states, point.inputs, point.slacks, point.sigmas, qp.coefficients,
-                       qp.row_lower, qp.sigma_upper, qp.bounds, offsets, values)
-    t = np.ones(m)
-    z = np.zeros(m)
-    for i in range(m):
+                       qp.row_lower, qp.sigma_upper, qp.bounds, ineq.offsets, values)
+    for i in range(values.shape[0]):
         if active[i]:
             t[i] = max(values[i], INITIAL_SLACK)
             z[i] = INITIAL_MULTIPLIER
-    return _Inequalities(offsets, active, has_sigma, n_active, values, t, z, np.empty(m),
-                         np.zeros(m), np.empty(m), np.zeros(m), np.zeros(m), np.zeros(m),
-                         np.zeros(m), np.zeros((horizon, n_slots)), np.zeros(8), np.zeros(m),
-                         np.zeros(m))
+        else:
+            t[i] = 1.0
+            z[i] = 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _allocate_workspace(horizon, n_slots):
-    """The iteration's arrays: (``_Gradients``, ``_Newton``, the direction as ``_Primal``)."""
+def allocate_workspace(horizon, n_slots):
+    """The solver's arrays for an (N, V) QP, allocated once: (point, inequality arrays, gradients,
+    Newton matrix, direction) as the named tuples ``_Primal``, ``_InequalityArrays``,
+    ``_Gradients``, ``_Newton``, ``_Primal`` (each solve resets what it reads before writing)."""
+    m = _offsets(horizon, n_slots)[10]
+    point = _Primal(np.empty((horizon + 1, 4)), np.empty((horizon, 2)), np.zeros(n_slots),
+                    np.zeros((horizon, n_slots)))
+    inequalities = _InequalityArrays(
+        np.zeros(m, dtype=np.bool_), np.zeros((horizon, n_slots), dtype=np.bool_),
+        *(np.zeros(m) for _ in range(13)), np.zeros((horizon, n_slots)), np.zeros(8))
     gradients = _Gradients(np.empty((horizon, 4)), np.empty((horizon, 2)), np.zeros(n_slots),
                            np.zeros((horizon, n_slots)), np.empty((horizon, 4)),
                            np.empty((horizon, 2)), np.empty(n_slots), np.empty(4), np.empty(4))
@@ -534,7 +543,26 @@ def _allocate_workspace(horizon, n_slots):
         np.empty((n_slots, n_slots)))
     direction = _Primal(np.empty((horizon + 1, 4)), np.empty((horizon, 2)), np.zeros(n_slots),
                         np.zeros((horizon, n_slots)))
-    return gradients, newton, direction
+    return point, inequalities, gradients, newton, direction
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _reset_workspace(arrays, gradients, newton, direction):
+    """Give the arrays that a solve reads before writing them their allocation values (zeros;
+    ones for h_sigma): a reused workspace then solves bit for bit as a fresh one."""
+    for vector in (arrays.d, arrays.residuals, arrays.gamma, arrays.dt, arrays.dz, arrays.dt_aff,
+                   arrays.dz_aff, arrays.t_inverse, arrays.z_inverse):
+        vector[:] = 0.0
+    arrays.zero_rows[:, :] = 0.0
+    arrays.zero_bounds[:] = 0.0
+    gradients.slacks[:] = 0.0
+    gradients.sigmas[:, :] = 0.0
+    newton.row_weight[:, :] = 0.0
+    newton.sigma_hessian[:, :] = 1.0
+    newton.column_gradients[:, :] = 0.0
+    newton.zero_input_gradients[:, :] = 0.0
+    direction.slacks[:] = 0.0
+    direction.sigmas[:, :] = 0.0
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -988,38 +1016,41 @@ def _update_iterate(point, direction, ineq, alpha_primal, alpha_dual, n_observed
 
 
 @numba.njit(cache=True, error_model="numpy")
-def solve_ltv_mpc_qp(measured_state, last_input, state_matrices, input_matrices,
-                     affine_offsets, tracking_reference, coefficients, row_lower, sigma_upper,
-                     n_observed, state_weight_hessian, input_weight_hessian, rate_hessian,
-                     slack_weights, bounds, initial_inputs, tolerance, max_iterations,
-                     states, inputs, slacks, sigmas):
-    """Solve the LTV-MPC QP of the module doc; writes states (N+1, 4), inputs (N, 2),
-    slacks (V,), sigmas (N, V).  Returns (status, iterations).
-
-    Args:
-        measured_state, last_input: x_hat (4,), u_hat (2,).
-        state_matrices, input_matrices, affine_offsets: A_k (N, 4, 4), B_k (N, 4, 2), c_k (N, 4).
-        tracking_reference: (N + 1, 4) x^ref_k (row 0 unused).
-        coefficients, row_lower, sigma_upper: collision rows (N, V, 3), h (N, V), sigma_hi (N, V).
-        n_observed: V_obs, slots j >= V_obs are empty.
-        state_weight_hessian, input_weight_hessian, rate_hessian: diagonals 2Q (4), 2R (2), 2S (2).
-        slack_weights: (w_c1, w_c2, w_s1, w_s2).
-        bounds: (y_lo, y_hi, v_lo, v_hi, delta_lo, a_lo, delta_hi, a_hi).
-        initial_inputs: (N, 2) inputs of the starting point (clipped into their box).
-        tolerance: residual and complementarity tolerance (see module doc).
-        max_iterations: iteration limit.
-    """
-    horizon, n_slots = state_matrices.shape[0], coefficients.shape[1]
-    qp = _Qp(last_input, state_matrices, input_matrices, affine_offsets, tracking_reference,
+def qp_tuple(last_input, state_matrices, input_matrices, affine_offsets, tracking_reference,
              coefficients, row_lower, sigma_upper, n_observed, state_weight_hessian,
-             input_weight_hessian, rate_hessian, slack_weights, bounds)
-    point = _Primal(states, inputs, slacks, sigmas)
+             input_weight_hessian, rate_hessian, slack_weights, bounds):
+    """The QP data as the steps' ``_Qp`` tuple (arguments as in ``solve_ltv_mpc_qp``)."""
+    return _Qp(last_input, state_matrices, input_matrices, affine_offsets, tracking_reference,
+               coefficients, row_lower, sigma_upper, n_observed, state_weight_hessian,
+               input_weight_hessian, rate_hessian, slack_weights, bounds)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def prepare_inequalities(qp, workspace):
+    """Reset the workspace and mark the QP's active inequalities; returns ``_Inequalities`` on
+    the workspace's arrays (t and z are set by a start)."""
+    _, arrays, gradients, newton, direction = workspace
+    horizon, n_slots = qp.coefficients.shape[0], qp.coefficients.shape[1]
     offsets = _offsets(horizon, n_slots)
-    active, has_sigma, n_active = _active_inequalities(sigma_upper, n_observed, offsets, horizon,
-                                                       n_slots)
-    _starting_point(qp, measured_state, initial_inputs, has_sigma, point)
-    ineq = _starting_inequalities(qp, point, offsets, active, has_sigma, n_active)
-    gradients, newton, direction = _allocate_workspace(horizon, n_slots)
+    _reset_workspace(arrays, gradients, newton, direction)
+    n_active = _active_inequalities(qp.sigma_upper, qp.n_observed, offsets, arrays.active,
+                                    arrays.has_sigma)
+    return _Inequalities(offsets, arrays.active, arrays.has_sigma, n_active, arrays.values,
+                         arrays.t, arrays.z, arrays.d, arrays.residuals, arrays.gamma, arrays.dt,
+                         arrays.dz, arrays.dt_aff, arrays.dz_aff, arrays.zero_rows,
+                         arrays.zero_bounds, arrays.t_inverse, arrays.z_inverse)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def cold_start(qp, measured_state, initial_inputs, ineq, point):
+    """The cold start (``_starting_point``, ``_starting_inequalities``) into point and ineq."""
+    _starting_point(qp, measured_state, initial_inputs, ineq.has_sigma, point)
+    _starting_inequalities(qp, point, ineq)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def iterate(qp, point, ineq, gradients, newton, direction, tolerance, max_iterations):
+    """Mehrotra predictor-corrector iterations from a started (point, ineq): (status, iterations)."""
     for iteration in range(max_iterations + 1):
         primal_residual, mu, dual_residual, dual_scale = _residuals(qp, point, ineq, gradients)
         status = _convergence_status(primal_residual, mu, dual_residual, dual_scale, tolerance)
@@ -1040,8 +1071,47 @@ def solve_ltv_mpc_qp(measured_state, last_input, state_matrices, input_matrices,
             if phase == 0:
                 sigma_centering = _mehrotra_centering(ineq, step_primal, step_dual, mu)
         alpha_primal, alpha_dual = _step_lengths(step_primal, step_dual)
-        _update_iterate(point, direction, ineq, alpha_primal, alpha_dual, n_observed)
+        _update_iterate(point, direction, ineq, alpha_primal, alpha_dual, qp.n_observed)
     return STATUS_MAX_ITERATIONS, max_iterations
+
+
+@numba.njit(cache=True, error_model="numpy")
+def solve_cold_in(measured_state, qp, initial_inputs, tolerance, max_iterations, workspace):
+    """``solve_ltv_mpc_qp`` on a ``qp_tuple`` in an ``allocate_workspace``: (status, iterations);
+    the solution is in ``workspace[0]``."""
+    point, _, gradients, newton, direction = workspace
+    ineq = prepare_inequalities(qp, workspace)
+    cold_start(qp, measured_state, initial_inputs, ineq, point)
+    return iterate(qp, point, ineq, gradients, newton, direction, tolerance, max_iterations)
+
+
+def solve_ltv_mpc_qp(measured_state, last_input, state_matrices, input_matrices,
+                     affine_offsets, tracking_reference, coefficients, row_lower, sigma_upper,
+                     n_observed, state_weight_hessian, input_weight_hessian, rate_hessian,
+                     slack_weights, bounds, initial_inputs, tolerance, max_iterations,
+                     states, inputs, slacks, sigmas):
+    """Solve the LTV-MPC QP of the module doc from the cold start; writes states (N+1, 4),
+    inputs (N, 2), slacks (V,), sigmas (N, V).  Returns (status, iterations).
+
+    Args:
+        measured_state, last_input: x_hat (4,), u_hat (2,).
+        state_matrices, input_matrices, affine_offsets: A_k (N, 4, 4), B_k (N, 4, 2), c_k (N, 4).
+        tracking_reference: (N + 1, 4) x^ref_k (row 0 unused).
+        coefficients, row_lower, sigma_upper: collision rows (N, V, 3), h (N, V), sigma_hi (N, V).
+        n_observed: V_obs, slots j >= V_obs are empty.
+        state_weight_hessian, input_weight_hessian, rate_hessian: diagonals 2Q (4), 2R (2), 2S (2).
+        slack_weights: (w_c1, w_c2, w_s1, w_s2).
+        bounds: (y_lo, y_hi, v_lo, v_hi, delta_lo, a_lo, delta_hi, a_hi).
+        initial_inputs: (N, 2) inputs of the starting point (clipped into their box).
+        tolerance: residual and complementarity tolerance (see module doc).
+        max_iterations: iteration limit.
+    """
+    _, arrays, gradients, newton, direction = allocate_workspace(*coefficients.shape[:2])
+    qp = qp_tuple(last_input, state_matrices, input_matrices, affine_offsets, tracking_reference,
+                  coefficients, row_lower, sigma_upper, n_observed, state_weight_hessian,
+                  input_weight_hessian, rate_hessian, slack_weights, bounds)
+    workspace = (_Primal(states, inputs, slacks, sigmas), arrays, gradients, newton, direction)
+    return solve_cold_in(measured_state, qp, initial_inputs, tolerance, max_iterations, workspace)
 
 
 @numba.njit(cache=True, error_model="numpy")

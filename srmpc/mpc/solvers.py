@@ -17,6 +17,7 @@ unknown name (at configuration time, before any episode).
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -24,11 +25,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.interior_point_warm_start import WARM_START_SETTINGS, allocate_memory, solve_in
 from srmpc.mpc.riccati_interior_point import (
     STATUS_NAMES,
     STATUS_SOLVED,
+    allocate_workspace,
+    qp_tuple,
     scatter_solution,
-    solve_ltv_mpc_qp,
 )
 
 DEFAULT_SOLVER = "riccati_ipm"
@@ -44,6 +47,11 @@ NATIVE_PIQP_TOLERANCE = INTERIOR_POINT_TOLERANCE
 RICCATI_IPM_TOLERANCE = 1e-8
 """Residual/complementarity tolerance of ``riccati_ipm`` (see ``riccati_interior_point``)."""
 RICCATI_IPM_MAX_ITERATIONS = 50
+
+SolverConstants = namedtuple("SolverConstants", ["state_weight_hessian", "input_weight_hessian",
+                                                 "rate_hessian", "slack_weights", "bounds"])
+"""``riccati_ipm``'s per-OCP constants: 2Q (4,), 2R (2,), 2S (2,), (w_c1, w_c2, w_s1, w_s2), the bounds (8,)
+(see ``riccati_interior_point.solve_ltv_mpc_qp``)."""
 
 
 @dataclass
@@ -226,45 +234,58 @@ class OsqpNativeSolver:
         return QpSolution(solved, str(result.info.status), z, int(result.info.iter))
 
 
-class RiccatiInteriorPointSolver:
-    """``riccati_interior_point.solve_ltv_mpc_qp`` on the QP's stage-wise data.
+WARM_START_BY_DEFAULT = False
+"""Whether ``riccati_ipm`` starts from the shifted previous solution unless told otherwise (see the class)."""
 
-    Starts from the linearization inputs (clipped into their box) rolled out through the
-    linearized dynamics; no warm start of the multipliers (interior-point methods gain little).
-    Any status other than solved is a failed solve (the planner's fallback chain takes over).
+
+class RiccatiInteriorPointSolver:
+    """``riccati_interior_point`` on the QP's stage-wise data, in arrays allocated once.
+
+    Starts from the shifted previous solution (primal and multipliers, ``interior_point_warm_start``)
+    when the previous solve succeeded and ``warm_start`` is on; otherwise (and as the safeguard when a
+    warm start fails) from the linearization inputs, clipped into their box, rolled out through the
+    linearized dynamics. Any status other than solved is a failed solve (the planner's fallback chain
+    takes over).
+
+    The warm start is off by default (:data:`WARM_START_BY_DEFAULT`): it changes the planner's floats, so it
+    is switched on together with a regeneration of every planner-based evaluation. Off, every plan is bit for
+    bit the committed evaluations' (``tests/mpc/test_compiled_step.py``).
     """
 
     name = "riccati_ipm"
     accepts_warm_start = False
 
     def __init__(self, tolerance: float = RICCATI_IPM_TOLERANCE,
-                 max_iterations: int = RICCATI_IPM_MAX_ITERATIONS) -> None:
+                 max_iterations: int = RICCATI_IPM_MAX_ITERATIONS,
+                 warm_start: bool | None = None) -> None:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
+        self.warm_start = WARM_START_BY_DEFAULT if warm_start is None else bool(warm_start)
+        self.warm_start_settings = WARM_START_SETTINGS
+        self.last_started_warm = False
         self._constants_for: LtvMpcQp | None = None
 
     def reset(self) -> None:
-        pass
+        """New episode: forget the previous solution (the next solve starts cold)."""
+        if self._constants_for is not None:
+            self.memory.valid[0] = False
 
     def _prepare(self, qp: LtvMpcQp) -> None:
         config = qp.config
         weights = config.weights
         horizon, n_slots = config.horizon, config.max_vehicles
-        self._state_weight_hessian = 2.0 * np.asarray(weights.state, dtype=np.float64)
-        self._input_weight_hessian = 2.0 * np.asarray(weights.input, dtype=np.float64)
-        self._rate_hessian = 2.0 * np.asarray(weights.input_rate, dtype=np.float64)
-        self._slack_weights = np.array([weights.collision_slack_linear,
-                                        weights.collision_slack_quadratic,
-                                        weights.safety_slack_linear,
-                                        weights.safety_slack_quadratic], dtype=np.float64)
-        self._bounds = np.array([*config.lateral_bounds_m, *config.speed_bounds_m_s,
-                                 config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0],
-                                 config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]],
-                                dtype=np.float64)
-        self._states = np.empty((horizon + 1, 4))
-        self._inputs = np.empty((horizon, 2))
-        self._slacks = np.empty(n_slots)
-        self._sigmas = np.empty((horizon, n_slots))
+        self.constants = SolverConstants(
+            2.0 * np.asarray(weights.state, dtype=np.float64),
+            2.0 * np.asarray(weights.input, dtype=np.float64),
+            2.0 * np.asarray(weights.input_rate, dtype=np.float64),
+            np.array([weights.collision_slack_linear, weights.collision_slack_quadratic,
+                      weights.safety_slack_linear, weights.safety_slack_quadratic], dtype=np.float64),
+            np.array([*config.lateral_bounds_m, *config.speed_bounds_m_s,
+                      config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0],
+                      config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]],
+                     dtype=np.float64))
+        self.workspace = allocate_workspace(horizon, n_slots)
+        self.memory = allocate_memory(horizon, n_slots, self.workspace[1].t.shape[0])
         layout = qp.layout
         self._scatter = np.concatenate([layout.state_indices().ravel(),
                                         layout.input_indices().ravel(),
@@ -272,24 +293,30 @@ class RiccatiInteriorPointSolver:
                                         layout.safety_slack_indices().ravel()])
         self._constants_for = qp
 
-    def solve(self, qp: LtvMpcQp, warm_start: np.ndarray | None = None) -> QpSolution:
+    def bind(self, qp: LtvMpcQp) -> None:
+        """Allocate the arrays for ``qp`` (once; the compiled planner step shares them)."""
         if self._constants_for is not qp:
             self._prepare(qp)
+
+    def solve(self, qp: LtvMpcQp, warm_start: np.ndarray | None = None) -> QpSolution:
+        self.bind(qp)
+        c = self.constants
         try:
-            status, iterations = solve_ltv_mpc_qp(
-                qp.measured_state, qp.last_input, qp.state_matrices, qp.input_matrices,
-                qp.affine_offsets, qp.tracking_reference, qp.collision_coefficients,
-                qp.collision_row_lower, qp.safety_slack_upper, qp.n_observed,
-                self._state_weight_hessian, self._input_weight_hessian, self._rate_hessian,
-                self._slack_weights, self._bounds, qp.linearization_inputs, self.tolerance,
-                self.max_iterations, self._states, self._inputs, self._slacks, self._sigmas)
+            problem = qp_tuple(qp.last_input, qp.state_matrices, qp.input_matrices, qp.affine_offsets,
+                               qp.tracking_reference, qp.collision_coefficients, qp.collision_row_lower,
+                               qp.safety_slack_upper, qp.n_observed, c.state_weight_hessian,
+                               c.input_weight_hessian, c.rate_hessian, c.slack_weights, c.bounds)
+            status, iterations, self.last_started_warm = solve_in(
+                qp.measured_state, problem, qp.linearization_inputs, self.tolerance, self.max_iterations,
+                self.workspace, self.memory, self.warm_start, self.warm_start_settings)
         except Exception as error:  # noqa: BLE001 -- a crashed solve is a failed solve
+            self.memory.valid[0] = False
             return QpSolution(False, f"exception: {error!r}", None)
         if status != STATUS_SOLVED:
             return QpSolution(False, STATUS_NAMES[status], None, int(iterations))
         z = np.empty(qp.n_variables)
-        if not scatter_solution(self._states, self._inputs, self._slacks, self._sigmas,
-                                self._scatter, z):
+        if not scatter_solution(*self.workspace[0], self._scatter, z):
+            self.memory.valid[0] = False
             return QpSolution(False, "non-finite solution", None, int(iterations))
         return QpSolution(True, STATUS_NAMES[status], z, int(iterations))
 

@@ -105,7 +105,15 @@ SimConstants = namedtuple(
         "si_eta",  # [units of phi]
         "si_cost_floor",  # [units of phi]
         "si_rss",  # the RSS index (scenario.safety_index.kind == rss) instead of the paper's
-        "si_rss_parameters",  # 8 floats, RssParameters.as_tuple() [s, s, m/s^2 x5, m]
+        # RssParameters, field by field (a parallel kernel takes no tuple argument):
+        "rss_response_time_ego",  # [s]
+        "rss_response_time_others",  # [s]
+        "rss_longitudinal_acceleration_max",  # [m/s^2]
+        "rss_longitudinal_brake_min",  # [m/s^2]
+        "rss_longitudinal_brake_max",  # [m/s^2]
+        "rss_lateral_acceleration_max",  # [m/s^2]
+        "rss_lateral_brake_min",  # [m/s^2]
+        "rss_lateral_margin",  # [m]
     ],
 )
 """Everything a kernel needs to know about the scenario (see :func:`sim_constants`)."""
@@ -145,5 +153,12 @@ def sim_constants(params: ScenarioParameters) -> SimConstants:
         si_eta=float(si.eta),
         si_cost_floor=float(si.cost_floor),
         si_rss=si.kind is SafetyIndexKind.rss,
-        si_rss_parameters=si.rss.as_tuple(),
+        rss_response_time_ego=float(si.rss.response_time_ego_s),
+        rss_response_time_others=float(si.rss.response_time_others_s),
+        rss_longitudinal_acceleration_max=float(si.rss.longitudinal_acceleration_max_mps2),
+        rss_longitudinal_brake_min=float(si.rss.longitudinal_brake_min_mps2),
+        rss_longitudinal_brake_max=float(si.rss.longitudinal_brake_max_mps2),
+        rss_lateral_acceleration_max=float(si.rss.lateral_acceleration_max_mps2),
+        rss_lateral_brake_min=float(si.rss.lateral_brake_min_mps2),
+        rss_lateral_margin=float(si.rss.lateral_margin_m),
     )

@@ -95,8 +95,11 @@ def measure(s, c, b: int, observation: np.ndarray, slot_vehicle: np.ndarray, raw
     raw_observation(ego, others, slot_vehicle, c.perception_range, raw)
     for i in range(OBSERVATION_SIZE):
         observation[i] = np.float32(raw[i] / OBSERVATION_SCALE[i])
+    rss = (c.rss_response_time_ego, c.rss_response_time_others, c.rss_longitudinal_acceleration_max,
+           c.rss_longitudinal_brake_min, c.rss_longitudinal_brake_max, c.rss_lateral_acceleration_max,
+           c.rss_lateral_brake_min, c.rss_lateral_margin)  # RssParameters.as_tuple()'s order
     return scene_safety_index(ego, others, slot_vehicle, c.si_rss, c.si_sigma, c.si_d_min, c.si_edge_d_min, c.si_n,
-                              c.si_k, c.si_rss_parameters)
+                              c.si_k, rss)
 
 
 Workspace = namedtuple(

@@ -14,9 +14,9 @@ import hashlib
 from pathlib import Path
 
 _PACKAGE_ROOT = Path(__file__).resolve().parents[1]
-KERNEL_SOURCE_DIRS = (_PACKAGE_ROOT / "sim", _PACKAGE_ROOT / "scenario")
+KERNEL_SOURCE_DIRS = (_PACKAGE_ROOT / "sim", _PACKAGE_ROOT / "scenario", _PACKAGE_ROOT / "mpc")
 """Packages whose modules define numba kernels (the twin calls the scenario's observation,
-safety-index and reward kernels)."""
+safety-index and reward kernels; the planner's compiled step calls the twin's)."""
 STAMP_NAME = "numba_sources.sha256"
 
 

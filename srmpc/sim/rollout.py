@@ -14,6 +14,7 @@ A :class:`~srmpc.sim.mlp.MlpPolicy` with two hidden layers runs fused inside one
 
 from __future__ import annotations
 
+from collections import namedtuple
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -61,18 +62,44 @@ def _allocate(scenes: int, horizon: int, vehicles: int, record_others: bool) -> 
     )
 
 
+RolloutBuffers = namedtuple("RolloutBuffers", ["slot_vehicle", "raw", "observation", "h0", "h1", "z", "work"])
+"""Work arrays of one scene's MLP rollout (their contents carry nothing between calls)."""
+
+
 @njit(cache=True, error_model="numpy")
-def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-                       ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
+def rollout_buffers(n, lane_count, hidden0, hidden1, outputs):
+    """Fresh :data:`RolloutBuffers` for scenes of ``n`` vehicles and an MLP of the given layer sizes."""
+    return RolloutBuffers(np.empty(SLOT_COUNT, dtype=np.int64), np.empty(OBSERVATION_SIZE),
+                          np.empty(OBSERVATION_SIZE, dtype=np.float32), np.empty(hidden0), np.empty(hidden1),
+                          np.empty(outputs), workspace(n, lane_count))
+
+
+@njit(cache=True, error_model="numpy")
+def copy_scene(source, target, b):
+    """target's scene b := source's scene b, every array of :data:`~srmpc.sim.state.StateArrays`."""
+    target.vehicles[b] = source.vehicles[b]
+    target.control[b] = source.control[b]
+    target.crashed[b] = source.crashed[b]
+    target.impact[b] = source.impact[b]
+    target.has_impact[b] = source.has_impact[b]
+    target.lane[b] = source.lane[b]
+    target.target_lane[b] = source.target_lane[b]
+    target.target_speed[b] = source.target_speed[b]
+    target.delta[b] = source.delta[b]
+    target.ego_rank[b] = source.ego_rank[b]
+    target.steps[b] = source.steps[b]
+    target.phi[b] = source.phi[b]
+    target.rng[b] = source.rng[b]
+    target.order[b] = source.order[b]
+
+
+@njit(cache=True, error_model="numpy")
+def rollout_scene_in(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
+                     ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others, buffers):
+    """Scene b's MLP rollout (module doc) in place on ``s``, with preallocated ``buffers``."""
     n = c.vehicles
     ego = n - 1
-    slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
-    raw = np.empty(OBSERVATION_SIZE)
-    observation = np.empty(OBSERVATION_SIZE, dtype=np.float32)
-    h0 = np.empty(w0.shape[1])
-    h1 = np.empty(w1.shape[1])
-    z = np.empty(w2.shape[1])
-    work = workspace(n, c.lane_count)
+    slot_vehicle, raw, observation, h0, h1, z, work = buffers
     phi = measure(s, c, b, observation, slot_vehicle, raw)
     for t in range(horizon + 1):
         for i in range(4):
@@ -97,6 +124,14 @@ def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squa
         reward_out[b, t] = reward_prime(vx, y, c.vx_ref, c.y_ref, c.speed_weight)
         terminated_out[b, t] = s.crashed[b, ego] or not on_lane(x, y, s.lane[b, ego], c.lane_width, c.road_length, 0.0)
     s.phi[b] = phi
+
+
+@njit(cache=True, error_model="numpy")
+def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
+                       ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
+    buffers = rollout_buffers(c.vehicles, c.lane_count, w0.shape[1], w1.shape[1], w2.shape[1])
+    rollout_scene_in(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
+                     ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others, buffers)
 
 
 @njit(cache=True, error_model="numpy")

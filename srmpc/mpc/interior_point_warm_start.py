@@ -1,0 +1,155 @@
+"""The Riccati interior point (``riccati_interior_point``) warm-started from the shifted previous solution.
+
+Consecutive planner QPs differ by one control period, so the previous solution, shifted by one stage,
+is close to the new one. When the previous solve succeeded, the start is:
+
+1. primal: the previous inputs shifted, u = (u_1, ..., u_{N-1}, u_{N-1}), clipped as the cold start
+   clips them and rolled out from x_hat through the new linear dynamics (every iterate keeps satisfying
+   them exactly, as from the cold start); collision slacks s_j the previous ones; safety slacks
+   sigma_kj the previous stage k + 1's (the last stage repeated), clipped into [0, sigma_hi] (0 where
+   sigma is fixed or the slot is empty);
+2. dual: the previous inequality multipliers z, shifted the same way (each inequality group is one
+   block per stage, or per slot for s_j >= 0);
+3. slacks t_i = max(a_i^T w - b_i, ``WARM_SLACK_FLOOR``) at that primal point;
+4. safeguarded centrality correction: the previous solution is at mu ~ tolerance, where a shifted,
+   not yet optimal point would stall against the boundary. Every pair is lifted to t_i z_i >=
+   ``WARM_CENTRALITY`` mu_0 (z_i raised) with mu_0 = max(mean t z, ``WARM_START_MU``), so the
+   iterations start from a well-centred point of complementarity about mu_0.
+
+Safeguard: if the warm-started iterations do not reach ``STATUS_SOLVED``, the QP is solved again from the
+cold start (the reported iterations are then the sum). A failed or absent previous solution (new episode,
+a fallback step) means the cold start.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numba
+import numpy as np
+
+from srmpc.mpc.riccati_interior_point import (
+    STATUS_SOLVED,
+    _constraint_values,
+    _starting_point,
+    cold_start,
+    iterate,
+    prepare_inequalities,
+)
+
+WARM_START_MU = 1e-1
+"""Lowest complementarity mu_0 of a warm start (objective units): lower stalls the shifted point."""
+WARM_CENTRALITY = 0.5
+"""Each warm pair starts with t_i z_i >= this fraction of mu_0 (dimensionless)."""
+WARM_SLACK_FLOOR = 1e-1
+"""Smallest starting slack t_i of a warm start (constraint units)."""
+
+WARM_START_SETTINGS = (WARM_START_MU, WARM_CENTRALITY, WARM_SLACK_FLOOR)
+"""The warm start's (mu_0 floor, centrality fraction, slack floor), ``solve_in``'s ``settings``."""
+
+WarmStartMemory = namedtuple("WarmStartMemory", ["inputs", "slacks", "sigmas", "z", "valid"])
+"""The last solved QP's inputs (N, 2), slacks (V,), sigmas (N, V), multipliers z (m,); valid (1,) bool:
+whether they come from a solved QP (cleared by a failed solve and a new episode)."""
+
+
+def allocate_memory(horizon: int, n_slots: int, n_inequalities: int) -> WarmStartMemory:
+    """An empty (invalid) memory for an (N, V) QP with m inequalities."""
+    return WarmStartMemory(np.zeros((horizon, 2)), np.zeros(n_slots), np.zeros((horizon, n_slots)),
+                           np.zeros(n_inequalities), np.zeros(1, dtype=np.bool_))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _shift_multipliers(offsets, horizon, n_slots, previous, out):
+    """z shifted one stage per group (module doc, item 2); s_j >= 0 rows keep their slot."""
+    (o_row, o_slo, o_sglo, o_sghi, o_ylo, o_yhi, o_vlo, o_vhi, o_ulo, o_uhi, _) = offsets
+    for start, width in ((o_row, n_slots), (o_sglo, n_slots), (o_sghi, n_slots), (o_ylo, 1),
+                         (o_yhi, 1), (o_vlo, 1), (o_vhi, 1), (o_ulo, 2), (o_uhi, 2)):
+        for k in range(horizon):
+            source = min(k + 1, horizon - 1)
+            for r in range(width):
+                out[start + k * width + r] = previous[start + source * width + r]
+    for j in range(n_slots):
+        out[o_slo + j] = previous[o_slo + j]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _warm_primal(qp, measured_state, memory, has_sigma, shifted_inputs, point):
+    """Module doc, item 1, into ``point`` (``shifted_inputs`` (N, 2) is scratch)."""
+    horizon = shifted_inputs.shape[0]
+    for k in range(horizon):
+        source = min(k + 1, horizon - 1)
+        shifted_inputs[k, 0] = memory.inputs[source, 0]
+        shifted_inputs[k, 1] = memory.inputs[source, 1]
+    _starting_point(qp, measured_state, shifted_inputs, has_sigma, point)
+    for j in range(qp.n_observed):
+        point.slacks[j] = max(memory.slacks[j], 0.0)
+        for k in range(horizon):
+            if has_sigma[k, j]:
+                sigma = memory.sigmas[min(k + 1, horizon - 1), j]
+                point.sigmas[k, j] = min(max(sigma, 0.0), qp.sigma_upper[k, j])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _warm_inequalities(qp, memory, point, ineq, settings):
+    """Module doc, items 2-4: t and z of the warm start on the active rows (t = 1, z = 0 elsewhere)."""
+    horizon, n_slots = qp.coefficients.shape[0], qp.coefficients.shape[1]
+    mu_floor, centrality, slack_floor = settings
+    values, active, t, z = ineq.values, ineq.active, ineq.t, ineq.z
+    _constraint_values(point.states, point.inputs, point.slacks, point.sigmas, qp.coefficients,
+                       qp.row_lower, qp.sigma_upper, qp.bounds, ineq.offsets, values)
+    _shift_multipliers(ineq.offsets, horizon, n_slots, memory.z, z)
+    complementarity = 0.0
+    for i in range(values.shape[0]):
+        if active[i]:
+            t[i] = max(values[i], slack_floor)
+            z[i] = max(z[i], 0.0)
+            complementarity += t[i] * z[i]
+        else:
+            t[i] = 1.0
+            z[i] = 0.0
+    mu = max(complementarity / ineq.n_active, mu_floor)
+    for i in range(values.shape[0]):
+        if active[i] and t[i] * z[i] < centrality * mu:
+            z[i] = centrality * mu / t[i]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _remember(point, ineq, memory):
+    """Keep a solved QP's inputs, slacks, sigmas and multipliers for the next warm start."""
+    memory.inputs[:, :] = point.inputs
+    memory.slacks[:] = point.slacks
+    memory.sigmas[:, :] = point.sigmas
+    memory.z[:] = ineq.z
+    memory.valid[0] = True
+
+
+@numba.njit(cache=True, error_model="numpy")
+def solve_in(measured_state, qp, initial_inputs, tolerance, max_iterations, workspace, memory,
+             warm, settings=WARM_START_SETTINGS):
+    """Solve a ``qp_tuple`` in an ``allocate_workspace``, warm if ``warm`` and ``memory`` is valid, else
+    from the cold start about ``initial_inputs`` (as ``solve_ltv_mpc_qp``).
+
+    ``settings``: ``WARM_START_SETTINGS``. Returns (status, iterations, started warm); the solution is in ``workspace[0]``, and in ``memory``
+    for the next call if solved.
+    """
+    point, arrays, gradients, newton, direction = workspace
+    iterations = 0
+    started_warm = warm and memory.valid[0]
+    if started_warm:
+        ineq = prepare_inequalities(qp, workspace)
+        _warm_primal(qp, measured_state, memory, ineq.has_sigma, direction.inputs, point)
+        _warm_inequalities(qp, memory, point, ineq, settings)
+        status, iterations = iterate(qp, point, ineq, gradients, newton, direction, tolerance,
+                                     max_iterations)
+        if status == STATUS_SOLVED:
+            _remember(point, ineq, memory)
+            return status, iterations, True
+    ineq = prepare_inequalities(qp, workspace)
+    cold_start(qp, measured_state, initial_inputs, ineq, point)
+    status, cold_iterations = iterate(qp, point, ineq, gradients, newton, direction, tolerance,
+                                      max_iterations)
+    if status == STATUS_SOLVED:
+        _remember(point, ineq, memory)
+    else:
+        memory.valid[0] = False
+    return status, iterations + cold_iterations, started_warm

@@ -1,0 +1,52 @@
+"""pipelines/rss.py: its verdict and recommendation rules, and the committed results/rss.json against them."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from pipelines.rss import AGENTS, METHODS, SPEED_TOLERANCE_MPS, TRAFFIC, difference_verdicts, recommendation
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_verdicts_follow_the_sign_of_the_whole_interval():
+    d = {"mean_event_cost_ci95": [-0.05, -0.01], "mean_vx_ci95": [0.1, 0.4]}
+    assert difference_verdicts(d) == {"J_c": "safer", "v_x": "faster"}
+    d = {"mean_event_cost_ci95": [0.01, 0.05], "mean_vx_ci95": [-0.4, -0.1]}
+    assert difference_verdicts(d) == {"J_c": "less safe", "v_x": "slower"}
+    d = {"mean_event_cost_ci95": [-0.01, 0.01], "mean_vx_ci95": [-0.1, 0.1]}
+    assert difference_verdicts(d) == {"J_c": "no difference resolved", "v_x": "no difference resolved"}
+
+
+def _rows(cost: dict, vx: dict) -> dict:
+    return {t: {f"srmpc_recommended/{a}": {"mean_event_cost": cost[a], "mean_vx": vx[a]} for a in AGENTS}
+            for t in TRAFFIC}
+
+
+def test_recommendation_prefers_the_lower_cost_unless_it_is_too_slow():
+    a, b = AGENTS
+    assert recommendation(_rows({a: 0.01, b: 0.02}, {a: 22.0, b: 22.0}))["agent"] == a
+    assert recommendation(_rows({a: 0.03, b: 0.02}, {a: 22.0, b: 22.0}))["agent"] == b
+    too_slow = _rows({a: 0.01, b: 0.02}, {a: 22.0 - 2 * SPEED_TOLERANCE_MPS, b: 22.0})
+    assert recommendation(too_slow)["agent"] == b
+
+
+@pytest.mark.skipif(not (ROOT / "results/rss.json").is_file(), reason="results/rss.json not generated")
+def test_committed_report_follows_its_rules():
+    report = json.loads((ROOT / "results/rss.json").read_text())
+    for traffic in TRAFFIC:
+        rows = report["evaluation"][traffic]
+        for method in METHODS:
+            assert rows[f"{method}/ppo_lsi"]["episodes"] == 1000
+            for agent in AGENTS:
+                row = rows[f"{method}/{agent}"]
+                assert row["episodes"] == 1000
+                assert row["verdicts"] == difference_verdicts(row["minus_ppo_lsi"])
+                assert row["minus_ppo_lsi"]["mean_event_cost"] == pytest.approx(
+                    row["mean_event_cost"] - rows[f"{method}/ppo_lsi"]["mean_event_cost"], abs=1e-12)
+    claim = report["training_claim"]
+    assert claim["holds"] == (claim["cost_rate_ratio_rss_over_ppo"] < 0.5
+                              and claim["return_difference_rss_minus_ppo"] >= 0)
+    assert report["recommendation"] == recommendation(report["evaluation"])
+    assert len(report["training"]["ppo_lsi_rss"]["seeds"]) == 3
