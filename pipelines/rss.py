@@ -17,9 +17,10 @@ RSS minus SI per episode seed, verdicts) and ``results/rss.md`` (the same as tab
 
 Verdict of a paired difference with 95% CI [low, high]: for J_c, ``safer`` when high < 0, ``less safe`` when
 low > 0; for v_x, ``faster`` when low > 0, ``slower`` when high < 0; otherwise ``no difference resolved``.
-The recommended parameter set: the one whose SRMPC at the recommended setting has the lower J_c summed over both
-traffic levels (a safety index is for safety), unless its v_x is lower by more than :data:`SPEED_TOLERANCE_MPS`
-in either level.
+The recommended parameter set is judged on the policy it trains (what a safety index is for): a set whose policy is
+``less safe`` than PPO-L-SI's in either traffic level is excluded; among the others, the one with the lower J_c
+summed over both levels, unless its v_x is lower by more than :data:`SPEED_TOLERANCE_MPS` in either level; none
+when every set is excluded.
 """
 
 from __future__ import annotations
@@ -121,15 +122,18 @@ def evaluation(resamples: int, seed: int) -> dict:
 
 
 def recommendation(rows: dict) -> dict:
-    """The parameter set by the rule of the module docstring, on SRMPC at the recommended setting."""
-    a, b = AGENTS
-    cost = {agent: sum(rows[t][f"srmpc_recommended/{agent}"]["mean_event_cost"] for t in TRAFFIC) for agent in AGENTS}
-    lower, other = (a, b) if cost[a] <= cost[b] else (b, a)
-    slower_by = max(rows[t][f"srmpc_recommended/{other}"]["mean_vx"] - rows[t][f"srmpc_recommended/{lower}"]["mean_vx"]
-                    for t in TRAFFIC)
-    chosen = lower if slower_by <= SPEED_TOLERANCE_MPS else other
-    return {"agent": chosen, "source": PARAMETER_SETS[chosen][0], "summed_J_c": cost,
-            "lower_J_c_is_slower_by_mps": slower_by, "speed_tolerance_mps": SPEED_TOLERANCE_MPS}
+    """The parameter set by the rule of the module docstring, on the policies (``ppo_lsi/<agent>`` rows)."""
+    excluded = sorted(agent for agent in AGENTS
+                      if any(rows[t][f"ppo_lsi/{agent}"]["verdicts"]["J_c"] == "less safe" for t in TRAFFIC))
+    cost = {agent: sum(rows[t][f"ppo_lsi/{agent}"]["mean_event_cost"] for t in TRAFFIC) for agent in AGENTS}
+    candidates = sorted((agent for agent in AGENTS if agent not in excluded), key=lambda agent: cost[agent])
+    chosen = candidates[0] if candidates else None
+    if len(candidates) > 1:
+        slower_by = max(rows[t][f"ppo_lsi/{candidates[1]}"]["mean_vx"] - rows[t][f"ppo_lsi/{chosen}"]["mean_vx"]
+                        for t in TRAFFIC)
+        chosen = chosen if slower_by <= SPEED_TOLERANCE_MPS else candidates[1]
+    return {"agent": chosen, "source": PARAMETER_SETS[chosen][0] if chosen else None, "summed_policy_J_c": cost,
+            "excluded_less_safe_than_ppo_lsi": excluded, "speed_tolerance_mps": SPEED_TOLERANCE_MPS}
 
 
 def markdown(result: dict) -> str:
@@ -188,21 +192,34 @@ def markdown(result: dict) -> str:
                          f"{sign('mean_event_cost', 3)} | {sign('mean_vx', 2)} | {v['J_c']}, {v['v_x']} |")
         lines.append("")
     rec = result["recommendation"]
+    excluded = ", ".join(AGENTS[a] for a in rec["excluded_less_safe_than_ppo_lsi"]) or "none"
+    chosen = (f"**{rec['source']}** ({AGENTS[rec['agent']]}, its policy's J_c summed over both levels "
+              f"{rec['summed_policy_J_c'][rec['agent']]:.3f})" if rec["agent"] else "**none**")
     lines += ["## Verdicts", ""] + [f"- {v}" for v in result["verdicts"]] + [
-        f"- Recommended parameter set: **{rec['source']}** ({AGENTS[rec['agent']]}): the lower J_c of SRMPC at the "
-        f"recommended setting summed over both traffic levels ({rec['summed_J_c'][rec['agent']]:.3f}), unless that "
-        f"costs more than {rec['speed_tolerance_mps']} m/s of v_x (the rule of pipelines/rss.py). "
-        "ad-rss-lib's set was trained on one seed only."]
+        f"- Recommended parameter set: {chosen}. The rule (pipelines/rss.py) judges a set by the policy it trains: "
+        f"excluded as less safe than PPO-L-SI's policy in a traffic level: {excluded}; then the lower J_c unless "
+        f"{rec['speed_tolerance_mps']} m/s slower. ad-rss-lib's set was trained on one seed only."]
     return "\n".join(lines) + "\n"
 
 
 def verdicts(result: dict) -> list[str]:
+    """Per traffic level and method, PPO-L-RSS against PPO-L-SI; then the proposal's two questions."""
     out = []
     for traffic in TRAFFIC:
         rows = result["evaluation"][traffic]
         for method, (label, _, _) in METHODS.items():
             v = rows[f"{method}/ppo_lsi_rss"]["verdicts"]
-            out.append(f"{traffic}, {label}: PPO-L-RSS against PPO-L-SI is {v['J_c']} (J_c) and {v['v_x']} (v_x).")
+            out.append(f"{traffic}, {label}, PPO-L-RSS against PPO-L-SI: J_c {v['J_c']}, v_x {v['v_x']}.")
+    policy = [result["evaluation"][t]["ppo_lsi/ppo_lsi_rss"]["verdicts"] for t in TRAFFIC]
+    proposer = [result["evaluation"][t][f"{m}/ppo_lsi_rss"]["verdicts"] for t in TRAFFIC for m in METHODS if m != "ppo_lsi"]
+    safer_policy = all(v["J_c"] == "safer" for v in policy)
+    faster_policy = all(v["v_x"] == "faster" for v in policy)
+    better_proposer = (all(v["J_c"] != "less safe" and v["v_x"] != "slower" for v in proposer)
+                       and any(v["J_c"] == "safer" or v["v_x"] == "faster" for v in proposer))
+    out.append(f"A safer policy: {'yes' if safer_policy else 'no'}; a faster policy: {'yes' if faster_policy else 'no'} "
+               "(PPO-L-RSS against PPO-L-SI, both traffic levels).")
+    out.append(f"A better proposer for SRMPC (no worse on J_c and v_x at both planner settings and traffic levels, better "
+               f"on one): {'yes' if better_proposer else 'no'}.")
     return out
 
 

@@ -57,6 +57,7 @@ RSS_POINTS = {"ppo_lsi/ppo_lsi_rss": ("PPO-L-RSS", "ppo_lsi"),
               "srmpc_recommended/ppo_lsi_rss": ("SRMPC tracking the rollout, 1 m, PPO-L-RSS proposing",
                                                 "srmpc_track_rollout")}
 """Rows of results/rss.json drawn as points: key -> (label, the color of the method it varies)."""
+RSS_SETTINGS = {"ppo_lsi/ppo_lsi_rss": "-", "srmpc/ppo_lsi_rss": "8 m", "srmpc_recommended/ppo_lsi_rss": "1 m"}
 TABLE_KEYS = ("episodes", "mean_return", "mean_return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps",
               "mean_vx")
 
@@ -228,14 +229,11 @@ def markdown(report: dict) -> str:
                 name = CURVES.get(method) or METHODS[method]
                 lines.append(f"| {name} | {label(p)} | {ci(p, 'mean_event_cost', 3)} | {ci(p, 'mean_vx', 2)} | "
                              f"{ci(p, 'mean_return', 0)} |")
-        for key, (name, color) in RSS_POINTS.items():
+        for key, (name, _) in RSS_POINTS.items():
             p = (r.get("rss") or {}).get(key)
-            if p is None:
-                continue
-            ax.errorbar([p["mean_vx"]], [p["mean_event_cost"]],
-                        xerr=np.abs(np.array([p["mean_vx_ci95"]]).T - p["mean_vx"]),
-                        yerr=np.abs(np.array([p["mean_event_cost_ci95"]]).T - p["mean_event_cost"]),
-                        fmt="^", color=colors[color], markeredgecolor="black", label=name, capsize=2, markersize=6)
+            if p is not None:
+                lines.append(f"| {name} (results/rss.md) | {RSS_SETTINGS[key]} | {ci(p, 'mean_event_cost', 3)} | "
+                             f"{ci(p, 'mean_vx', 2)} | {ci(p, 'mean_return', 0)} |")
         for method in ("ppo_lsi", "ltv_mpc", "srmpc"):
             values = PAPER[(traffic, method)]
             lines.append(f"| {METHODS[method]} (paper) | - | {values[2]:.3f} | {values[5]:.2f} | {values[0]:.0f} |")

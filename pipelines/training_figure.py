@@ -128,7 +128,7 @@ def main() -> None:
     if not runs:
         raise SystemExit(f"no metrics.csv under {args.training_dir}/{{{','.join(AGENTS)}}}/seed_*")
     args.figure_dir.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.6))
     table = []
     flat: dict[str, dict[str, float | None]] = {}
     for agent, seeds in runs.items():
@@ -147,17 +147,19 @@ def main() -> None:
             low = [min(c[i] for c in curves) for i in range(length)]
             high = [max(c[i] for c in curves) for i in range(length)]
             flat.setdefault(agent, {})[name] = flat_from(frames, mean)
-            line, = axis.plot(frames, mean, label=f"{AGENTS[agent]} (mean of {len(seeds)} seeds)")
+            runs_label = f"mean of {len(seeds)} seeds" if len(seeds) > 1 else f"seed {next(iter(seeds))}"
+            line, = axis.plot(frames, mean, label=f"{AGENTS[agent]} ({runs_label})")
             axis.fill_between(frames, low, high, color=line.get_color(), alpha=0.2, lw=0)
             axis.set_xlabel("environment steps")
             axis.set_ylabel(label)
     axes[2].set_yscale("log")
     for axis in axes:
         axis.grid(alpha=0.3)
-        axis.legend()
+    handles, labels = axes[0].get_legend_handles_labels()  # one legend below the panels: it covers no curve
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
     fig.suptitle(f"PPO (ours and Stable-Baselines3's) vs PPO-L-SI and PPO-L-RSS in training: mean over seeds, band = "
                  f"range over seeds (running mean over {args.window:.0%} of the iterations)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(args.figure_dir / "training.png", dpi=120)
     with (args.figure_dir / "training.csv").open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(table[0]))

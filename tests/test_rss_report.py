@@ -19,17 +19,22 @@ def test_verdicts_follow_the_sign_of_the_whole_interval():
     assert difference_verdicts(d) == {"J_c": "no difference resolved", "v_x": "no difference resolved"}
 
 
-def _rows(cost: dict, vx: dict) -> dict:
-    return {t: {f"srmpc_recommended/{a}": {"mean_event_cost": cost[a], "mean_vx": vx[a]} for a in AGENTS}
+def _rows(cost: dict, vx: dict, safety: dict | None = None) -> dict:
+    safety = safety or {}
+    return {t: {f"ppo_lsi/{a}": {"mean_event_cost": cost[a], "mean_vx": vx[a],
+                                 "verdicts": {"J_c": safety.get(a, "safer"), "v_x": "slower"}} for a in AGENTS}
             for t in TRAFFIC}
 
 
-def test_recommendation_prefers_the_lower_cost_unless_it_is_too_slow():
+def test_recommendation_prefers_the_lower_cost_unless_it_is_too_slow_or_less_safe_than_ppo_lsi():
     a, b = AGENTS
     assert recommendation(_rows({a: 0.01, b: 0.02}, {a: 22.0, b: 22.0}))["agent"] == a
     assert recommendation(_rows({a: 0.03, b: 0.02}, {a: 22.0, b: 22.0}))["agent"] == b
     too_slow = _rows({a: 0.01, b: 0.02}, {a: 22.0 - 2 * SPEED_TOLERANCE_MPS, b: 22.0})
     assert recommendation(too_slow)["agent"] == b
+    assert recommendation(_rows({a: 0.01, b: 0.02}, {a: 22.0, b: 22.0}, {a: "less safe"}))["agent"] == b
+    assert recommendation(_rows({a: 0.01, b: 0.02}, {a: 22.0, b: 22.0}, {a: "less safe", b: "less safe"}))[
+        "agent"] is None
 
 
 @pytest.mark.skipif(not (ROOT / "results/rss.json").is_file(), reason="results/rss.json not generated")
