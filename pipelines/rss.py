@@ -11,6 +11,8 @@ Reads
   (``srmpc_recommended``: tracking the rollout, 1 m safety region), 1000 episodes on the table's seeds;
 - the same methods with PPO-L-SI on the same seeds: ``results/evaluation/twin/{ppo_lsi,srmpc}_<traffic>/`` and
   ``results/evaluation/tradeoff/srmpc_track_rollout_margin_1m_<traffic>/``;
+- the confirmation: PPO-L-RSS's policy (``results/evaluation/rss/ppo_lsi_ppo_lsi_rss_confirmation_<traffic>/``) and
+  PPO-L-SI's (``results/evaluation/confirmation/ppo_lsi_<traffic>/``) on 1000 fresh episodes (seeds 100000 + i);
 
 and writes ``results/rss.json`` (parameter sets, training rows, evaluation rows with 95% CIs, paired differences
 RSS minus SI per episode seed, verdicts) and ``results/rss.md`` (the same as tables and sentences).
@@ -49,6 +51,9 @@ METHODS = {"ppo_lsi": ("policy", "results/evaluation/twin/ppo_lsi_{traffic}", "p
                                  "srmpc_track_rollout")}
 """Method -> (label, PPO-L-SI's folder on the same seeds, the method name its config.yaml gives)."""
 TRAINING_AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI", **AGENTS}
+CONFIRMATION_PPO_LSI = "results/evaluation/confirmation/ppo_lsi_{traffic}"
+CONFIRMATION_SEED = 100000
+"""PPO-L-SI on fresh seeds (DVC stage evaluate_confirmation); PPO-L-RSS's policy on the same: evaluate_rss_confirmation."""
 SPEED_TOLERANCE_MPS = 0.5
 """A parameter set is not recommended for a lower J_c if its SRMPC is slower than the other's by more than this."""
 
@@ -79,14 +84,15 @@ def training_rows(summary: dict) -> dict:
             for agent in TRAINING_AGENTS if agent in summary}
 
 
-def folder(path: Path, method: str, traffic: str) -> Path:
-    """``path``, checked against its config.yaml: the method, the traffic and the table's seeds (episode i from i)."""
+def folder(path: Path, method: str, traffic: str, seed: int = 0) -> Path:
+    """``path``, checked against its config.yaml: the method, the traffic and the seeds (episode i from seed + i;
+    0: the table's)."""
     if not (path / "summary.json").is_file():
         raise SystemExit(f"rss: {path} holds no finished evaluation (run its DVC stage first)")
     experiment = experiment_of(read_config(path))
-    if (experiment["method"], experiment["traffic"], experiment["seed"]) != (method, traffic, 0):
+    if (experiment["method"], experiment["traffic"], experiment["seed"]) != (method, traffic, seed):
         raise SystemExit(f"rss: {path} holds {experiment['method']} in {experiment['traffic']} traffic from seed "
-                         f"{experiment['seed']}, not {method} in {traffic} traffic from seed 0")
+                         f"{experiment['seed']}, not {method} in {traffic} traffic from seed {seed}")
     return path
 
 
@@ -118,6 +124,21 @@ def evaluation(resamples: int, seed: int) -> dict:
                 rows[f"{method}/{agent}"] = {**row, "directory": str(directory), "minus_ppo_lsi": difference,
                                              "verdicts": difference_verdicts(difference)}
         result[traffic] = rows
+    return result
+
+
+def confirmation(resamples: int, seed: int) -> dict:
+    """PPO-L-RSS's policy against PPO-L-SI's on the confirmation's fresh seeds (100000 + i), paired."""
+    result = {}
+    for traffic in TRAFFIC:
+        si_dir = CONFIRMATION_PPO_LSI.format(traffic=traffic)
+        si_row, si_frame = method_row(folder(Path(si_dir), "ppo_lsi", traffic, CONFIRMATION_SEED), resamples, seed)
+        directory = RSS / f"ppo_lsi_ppo_lsi_rss_confirmation_{traffic}"
+        row, frame = method_row(folder(directory, "ppo_lsi_rss", traffic, CONFIRMATION_SEED), resamples, seed)
+        difference = paired_differences(frame, si_frame, resamples, seed)
+        result[traffic] = {"ppo_lsi": {**si_row, "directory": si_dir},
+                           "ppo_lsi_rss": {**row, "directory": str(directory), "minus_ppo_lsi": difference,
+                                           "verdicts": difference_verdicts(difference)}}
     return result
 
 
@@ -191,6 +212,18 @@ def markdown(result: dict) -> str:
             lines.append(f"| {METHODS[method][0]} | {TRAINING_AGENTS[agent]} | {sign('mean_return', 0)} | "
                          f"{sign('mean_event_cost', 3)} | {sign('mean_vx', 2)} | {v['J_c']}, {v['v_x']} |")
         lines.append("")
+    lines += ["### The policies on fresh seeds (100000 + i, 1000 episodes per traffic level)", "",
+              "| traffic | policy | J_c | v_x [m/s] | ΔJ_c (RSS - SI) | Δv_x [m/s] | verdict |", "|---|---|---|---|---|---|---|"]
+    for traffic in TRAFFIC:
+        rows = result["confirmation"][traffic]
+        d, v = rows["ppo_lsi_rss"]["minus_ppo_lsi"], rows["ppo_lsi_rss"]["verdicts"]
+        lines.append(f"| {traffic} | PPO-L-SI | {ci(rows['ppo_lsi'], 'mean_event_cost', 3)} | "
+                     f"{ci(rows['ppo_lsi'], 'mean_vx', 2)} | | | |")
+        lines.append(f"| {traffic} | PPO-L-RSS | {ci(rows['ppo_lsi_rss'], 'mean_event_cost', 3)} | "
+                     f"{ci(rows['ppo_lsi_rss'], 'mean_vx', 2)} | {d['mean_event_cost']:+.3f} "
+                     f"[{d['mean_event_cost_ci95'][0]:+.3f}, {d['mean_event_cost_ci95'][1]:+.3f}] | {d['mean_vx']:+.2f} "
+                     f"[{d['mean_vx_ci95'][0]:+.2f}, {d['mean_vx_ci95'][1]:+.2f}] | {v['J_c']}, {v['v_x']} |")
+    lines.append("")
     rec = result["recommendation"]
     excluded = ", ".join(AGENTS[a] for a in rec["excluded_less_safe_than_ppo_lsi"]) or "none"
     chosen = (f"**{rec['source']}** ({AGENTS[rec['agent']]}, its policy's J_c summed over both levels "
@@ -210,6 +243,10 @@ def verdicts(result: dict) -> list[str]:
         for method, (label, _, _) in METHODS.items():
             v = rows[f"{method}/ppo_lsi_rss"]["verdicts"]
             out.append(f"{traffic}, {label}, PPO-L-RSS against PPO-L-SI: J_c {v['J_c']}, v_x {v['v_x']}.")
+    for traffic in TRAFFIC:
+        v = result["confirmation"][traffic]["ppo_lsi_rss"]["verdicts"]
+        out.append(f"{traffic}, policy, fresh seeds (100000 + i), PPO-L-RSS against PPO-L-SI: J_c {v['J_c']}, "
+                   f"v_x {v['v_x']}.")
     policy = [result["evaluation"][t]["ppo_lsi/ppo_lsi_rss"]["verdicts"] for t in TRAFFIC]
     proposer = [result["evaluation"][t][f"{m}/ppo_lsi_rss"]["verdicts"] for t in TRAFFIC for m in METHODS if m != "ppo_lsi"]
     safer_policy = all(v["J_c"] == "safer" for v in policy)
@@ -233,6 +270,7 @@ def main() -> None:
         raise SystemExit(f"rss: {TRAINING_SUMMARY} has no PPO-L-RSS (run DVC stages train_rss, training_figure first)")
     result = {"parameter_sets": parameter_sets(), "training": training_rows(summary),
               "training_claim": summary["paper_claim_ppo_lsi_rss"], "evaluation": evaluation(args.resamples, args.seed)}
+    result["confirmation"] = confirmation(args.resamples, args.seed)
     result["verdicts"] = verdicts(result)
     result["recommendation"] = recommendation(result["evaluation"])
     text = markdown(result)

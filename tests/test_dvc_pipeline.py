@@ -1,7 +1,7 @@
 """dvc.yaml reads in one pass: short commands, runs defined in conf/, and the committed results are theirs.
 
 - every command, as written and as DVC renders it (``dvc.lock``), is at most 200 characters;
-- the file is under 370 lines (99 stages);
+- the file is under 400 lines (101 stages);
 - every stage of ``dvc.yaml`` is in ``dvc.lock`` with the command it renders to there, so the lock describes
   this pipeline, not an older one;
 - each training directory's committed ``config.yaml`` is what its stage's run composes to today: a run
@@ -45,7 +45,7 @@ def test_every_command_is_short_as_written_and_as_rendered():
 
 
 def test_the_file_reads_in_one_pass():
-    assert len((ROOT / "dvc.yaml").read_text().splitlines()) < 370
+    assert len((ROOT / "dvc.yaml").read_text().splitlines()) < 400
 
 
 def test_every_stage_is_locked_with_its_command():

@@ -50,6 +50,9 @@ def test_committed_report_follows_its_rules():
                 assert row["verdicts"] == difference_verdicts(row["minus_ppo_lsi"])
                 assert row["minus_ppo_lsi"]["mean_event_cost"] == pytest.approx(
                     row["mean_event_cost"] - rows[f"{method}/ppo_lsi"]["mean_event_cost"], abs=1e-12)
+    for traffic in TRAFFIC:
+        row = report["confirmation"][traffic]["ppo_lsi_rss"]
+        assert row["episodes"] == 1000 and row["verdicts"] == difference_verdicts(row["minus_ppo_lsi"])
     claim = report["training_claim"]
     assert claim["holds"] == (claim["cost_rate_ratio_rss_over_ppo"] < 0.5
                               and claim["return_difference_rss_minus_ppo"] >= 0)
