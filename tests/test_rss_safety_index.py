@@ -123,6 +123,12 @@ def test_cost_is_at_the_floor_where_the_pair_is_rss_safe_and_positive_where_the_
 
 
 def test_paper_kind_is_the_papers_index_bit_for_bit():
+    """With kind paper, phi is the paper's: the edge barriers and sigma + d_min for every observed vehicle,
+    composed here from the barrier kernel alone (the same operations, so the same bits)."""
+    from srmpc.scenario.observation import closest_lane
+    from srmpc.scenario.road import LEFT_ROAD_EDGE, RIGHT_ROAD_EDGE
+    from srmpc.scenario.safety_index import barrier, vehicle_gap_and_rate
+
     rng = np.random.default_rng(1)
     si = SafetyIndexParameters()
     for _ in range(200):
@@ -130,10 +136,16 @@ def test_paper_kind_is_the_papers_index_bit_for_bit():
         others = np.column_stack([rng.uniform(-90, 90, 8), rng.choice([0.0, 4.0, 8.0], 8), np.zeros(8),
                                   rng.uniform(18, 26, 8)])
         _, slots = observe(ego, others, 100.0)
-        paper = safety_index(ego, others, slots, si.sigma_m, si.d_min_m, si.edge_d_min_m, si.n, si.k_s)
-        selected = scene_safety_index(ego, others, slots, False, si.sigma_m, si.d_min_m, si.edge_d_min_m, si.n,
-                                      si.k_s, AGGRESSIVE.as_tuple())
-        assert selected == paper
+        vy = ego[3] * np.sin(ego[2])
+        expected = max(barrier(max(RIGHT_ROAD_EDGE - ego[1], 0.0), -vy, si.sigma_m + si.edge_d_min_m, si.n, si.k_s),
+                       barrier(max(ego[1] - LEFT_ROAD_EDGE, 0.0), vy, si.sigma_m + si.edge_d_min_m, si.n, si.k_s))
+        for j in slots[slots >= 0]:
+            same_lane = closest_lane(others[j, 1]) == closest_lane(ego[1])
+            gap, rate = vehicle_gap_and_rate(ego, others[j], same_lane)
+            expected = max(expected, barrier(gap, rate, si.sigma_m + si.d_min_m, si.n, si.k_s))
+        assert safety_index(ego, others, slots, si.sigma_m, si.d_min_m, si.edge_d_min_m, si.n, si.k_s) == expected
+        assert scene_safety_index(ego, others, slots, False, si.sigma_m, si.d_min_m, si.edge_d_min_m, si.n,
+                                  si.k_s, AGGRESSIVE.as_tuple()) == expected
 
 
 def test_config_selects_the_index_and_records_rss_only_when_selected():

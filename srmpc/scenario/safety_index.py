@@ -64,23 +64,9 @@ def safety_index(
     n: float,
     k: float,
 ) -> float:
-    """phi(s): the maximum of the barrier over the observed vehicles and both road edges."""
-    ego_lane = closest_lane(ego[1])
-    ego_vy = ego[3] * np.sin(ego[2])
-    right_distance = max(RIGHT_ROAD_EDGE - ego[1], 0.0)
-    left_distance = max(ego[1] - LEFT_ROAD_EDGE, 0.0)
-    phi = max(
-        barrier(right_distance, -ego_vy, sigma + edge_d_min, n, k),
-        barrier(left_distance, ego_vy, sigma + edge_d_min, n, k),
-    )
-    for slot in range(SLOT_COUNT):
-        j = slot_vehicle[slot]
-        if j < 0:
-            continue
-        same_lane = closest_lane(others[j, 1]) == ego_lane
-        gap, rate = vehicle_gap_and_rate(ego, others[j], same_lane)
-        phi = max(phi, barrier(gap, rate, sigma + d_min, n, k))
-    return phi
+    """phi(s): the maximum of the barrier over the observed vehicles and both road edges (the paper's index:
+    :func:`scene_safety_index` with the safe distance sigma + d_min for every vehicle)."""
+    return scene_safety_index(ego, others, slot_vehicle, False, sigma, d_min, edge_d_min, n, k, NO_RSS)
 
 
 RSS_RESPONSE_TIME_EGO = 0
@@ -93,6 +79,8 @@ RSS_LAT_BRAKE_MIN = 6
 RSS_LAT_MARGIN = 7
 RSS_PARAMETER_COUNT = 8
 """Positions in the RSS parameter array (the order of :class:`~srmpc.scenario.parameters.RssParameters`)."""
+NO_RSS = (0.0,) * RSS_PARAMETER_COUNT
+"""The RSS parameters passed where the paper's index is computed (unused there)."""
 
 
 @njit(cache=True)
@@ -175,23 +163,8 @@ def rss_safety_index(
     rss: tuple,
 ) -> float:
     """phi(s) with the RSS distance: the maximum of the barrier (sigma + d_RSS)^n - d^n - k d_dot over
-    the observed vehicles, and of the paper's edge barriers."""
-    ego_lane = closest_lane(ego[1])
-    ego_vy = ego[3] * np.sin(ego[2])
-    right_distance = max(RIGHT_ROAD_EDGE - ego[1], 0.0)
-    left_distance = max(ego[1] - LEFT_ROAD_EDGE, 0.0)
-    phi = max(
-        barrier(right_distance, -ego_vy, sigma + edge_d_min, n, k),
-        barrier(left_distance, ego_vy, sigma + edge_d_min, n, k),
-    )
-    for slot in range(SLOT_COUNT):
-        j = slot_vehicle[slot]
-        if j < 0:
-            continue
-        same_lane = closest_lane(others[j, 1]) == ego_lane
-        gap, rate = vehicle_gap_and_rate(ego, others[j], same_lane)
-        phi = max(phi, barrier(gap, rate, sigma + rss_safe_distance(ego, others[j], same_lane, rss), n, k))
-    return phi
+    the observed vehicles, and of the paper's edge barriers (:func:`scene_safety_index` with ``use_rss``)."""
+    return scene_safety_index(ego, others, slot_vehicle, True, sigma, 0.0, edge_d_min, n, k, rss)
 
 
 @njit(cache=True)
@@ -207,10 +180,26 @@ def scene_safety_index(
     k: float,
     rss: tuple,
 ) -> float:
-    """phi(s) of the selected index: :func:`rss_safety_index` if ``use_rss``, else :func:`safety_index`."""
-    if use_rss:
-        return rss_safety_index(ego, others, slot_vehicle, sigma, edge_d_min, n, k, rss)
-    return safety_index(ego, others, slot_vehicle, sigma, d_min, edge_d_min, n, k)
+    """phi(s) of the selected index: the maximum of the barrier over both road edges (safe distance
+    sigma + edge_d_min) and the observed vehicles (sigma + the pair's RSS distance if ``use_rss``, else
+    sigma + d_min)."""
+    ego_lane = closest_lane(ego[1])
+    ego_vy = ego[3] * np.sin(ego[2])
+    right_distance = max(RIGHT_ROAD_EDGE - ego[1], 0.0)
+    left_distance = max(ego[1] - LEFT_ROAD_EDGE, 0.0)
+    phi = max(
+        barrier(right_distance, -ego_vy, sigma + edge_d_min, n, k),
+        barrier(left_distance, ego_vy, sigma + edge_d_min, n, k),
+    )
+    for slot in range(SLOT_COUNT):
+        j = slot_vehicle[slot]
+        if j < 0:
+            continue
+        same_lane = closest_lane(others[j, 1]) == ego_lane
+        gap, rate = vehicle_gap_and_rate(ego, others[j], same_lane)
+        safe_distance = rss_safe_distance(ego, others[j], same_lane, rss) if use_rss else d_min
+        phi = max(phi, barrier(gap, rate, sigma + safe_distance, n, k))
+    return phi
 
 
 @njit(cache=True)
