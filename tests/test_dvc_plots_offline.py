@@ -160,7 +160,7 @@ def test_dvc_plots_show_draws_every_plot_with_no_network(tmp_path):
         if kind == "line":  # one line per training run (raw and smoothed), a point per row of its metrics.csv
             lines = Counter(n for marktype, _, n in plot["marks"] if marktype == "line")
             assert all(lines[n] >= k for n, k in Counter(expected).items()), (plot["id"], lines, expected)
-            assert len(spec["y"]) == 9 and min(expected) > 100  # PPO, PPO-L-SI, SB3 PPO x seeds 0-2
+            assert len(spec["y"]) == 12 and min(expected) > 100  # PPO, PPO-L-SI, SB3 PPO, PPO-L-RSS x seeds 0-2
         else:  # one symbol per episode of every method
             symbols = [n for marktype, role, n in plot["marks"] if marktype == "symbol" and role == "mark"]
             assert symbols == [sum(expected)], (plot["id"], symbols, expected)
