@@ -40,6 +40,7 @@ import numpy as np
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.controller_factory import build_controller
 from srmpc.mpc.nmpc import NmpcSolver
+from srmpc.output_folder import atomic_write_text
 from srmpc.sim.single_env import TwinScenarioEnv
 
 OUTPUT = Path("results/benchmarks/nmpc_initial_guess.json")
@@ -369,9 +370,7 @@ def main() -> None:
                     "load_average_1_5_15min_after": list(os.getloadavg())},
     }
     OUTPUT.parent.mkdir(parents=True, exist_ok=True)
-    temporary = OUTPUT.with_name(OUTPUT.name + ".tmp")
-    temporary.write_text(json.dumps(result, indent=2) + "\n")
-    os.replace(temporary, OUTPUT)
+    atomic_write_text(OUTPUT, json.dumps(result, indent=2) + "\n")
     figure(table, records, FIGURE)
     print(json.dumps({"per_guess": table, "agreement": result["agreement_with_ipopt"]["all_guesses"],
                       "targets": result["targets"]}, indent=1))

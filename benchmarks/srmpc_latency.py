@@ -34,6 +34,7 @@ from srmpc.config.compose import compose_config, to_objects
 from srmpc.controller_factory import build_controller
 from srmpc.controllers.srmpc import SrmpcController
 from srmpc.mpc.solvers import make_solver
+from srmpc.output_folder import atomic_write_text
 from srmpc.sim.single_env import TwinScenarioEnv
 
 OUTPUT = Path("results/benchmarks/srmpc_latency.json")
@@ -241,9 +242,7 @@ def main() -> None:
                     "load_average_1_5_15min_after": list(os.getloadavg())},
     }
     OUTPUT.parent.mkdir(parents=True, exist_ok=True)
-    temporary = OUTPUT.with_name(OUTPUT.name + ".tmp")
-    temporary.write_text(json.dumps(result, indent=2) + "\n")
-    os.replace(temporary, OUTPUT)
+    atomic_write_text(OUTPUT, json.dumps(result, indent=2) + "\n")
     print(json.dumps({"targets": result["targets"], "rollout_vs_highway_env": result["rollout_vs_highway_env"]},
                      indent=1))
     for name, row in per_controller.items():

@@ -1,4 +1,5 @@
-"""DVC stage ``rss``: the safety index built on Responsibility-Sensitive Safety, trained and evaluated against the paper's.
+"""DVC stage ``rss``: the safety index built on Responsibility-Sensitive Safety, trained and evaluated against
+the paper's.
 
     python -m pipelines.rss
 
@@ -53,7 +54,8 @@ METHODS = {"ppo_lsi": ("policy", "results/evaluation/twin/ppo_lsi_{traffic}", "p
 TRAINING_AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI", **AGENTS}
 CONFIRMATION_PPO_LSI = "results/evaluation/confirmation/ppo_lsi_{traffic}"
 CONFIRMATION_SEED = 100000
-"""PPO-L-SI on fresh seeds (DVC stage evaluate_confirmation); PPO-L-RSS's policy on the same: evaluate_rss_confirmation."""
+"""PPO-L-SI on fresh seeds (DVC stage evaluate_confirmation); PPO-L-RSS's policy on the same seeds:
+evaluate_rss_confirmation."""
 SPEED_TOLERANCE_MPS = 0.5
 """A parameter set is not recommended for a lower J_c if its SRMPC is slower than the other's by more than this."""
 
@@ -159,13 +161,16 @@ def recommendation(rows: dict) -> dict:
 
 def markdown(result: dict) -> str:
     lines = ["# A safety index built on Responsibility-Sensitive Safety (PPO-L-RSS)", "",
-             "The paper's barrier phi = (sigma + d_safe)^n - d^n - k d_dot per observed vehicle, with d_safe the pair's "
+             "The paper's barrier phi = (sigma + d_safe)^n - d^n - k d_dot per observed vehicle, with d_safe the "
+             "pair's "
              "RSS distance instead of the constant d_min = 1 m (`scenario.safety_index.kind=rss`, "
              "`srmpc/scenario/safety_index.py`): same lane, longitudinal "
-             "d = [v_r rho + a_acc rho^2 / 2 + (v_r + rho a_acc)^2 / (2 b_min) - v_f^2 / (2 b_max)]_+ (the vehicle behind "
+             "d = [v_r rho + a_acc rho^2 / 2 + (v_r + rho a_acc)^2 / (2 b_min) - v_f^2 / (2 b_max)]_+ "
+             "(the vehicle behind "
              "is the rear one); other lane, lateral d = mu + [(2 v_1 + rho a) rho / 2 + (v_1 + rho a)^2 / (2 b) "
              "- ((2 v_2 - rho a) rho / 2 - (v_2 - rho a)^2 / (2 b))]_+ (vehicle 1 the left one). Road edges keep the "
-             "paper's term. Everything else is PPO-L-SI's (conf/agent/ppo_lsi.yaml), 20M environment steps per seed.", "",
+             "paper's term. Everything else is PPO-L-SI's (conf/agent/ppo_lsi.yaml), 20M environment steps per "
+             "seed.", "",
              "## Parameter sets", "",
              "| agent | source | rho ego / others [s] | a_acc / b_min / b_max [m/s^2] | lateral a / b [m/s^2], mu [m] "
              "| d_lon 25 behind 25 m/s [m] | d_lon 25 behind 20 m/s [m] | d_lat, both still [m] |",
@@ -179,7 +184,8 @@ def markdown(result: dict) -> str:
             f"{p['lateral_brake_min_mps2']}, {p['lateral_margin_m']} | {s['longitudinal_m']['25_behind_25']:.1f} | "
             f"{s['longitudinal_m']['25_behind_20']:.1f} | {s['lateral_m']['both_still']:.2f} |")
     lines += ["", "The paper's index asks for sigma + d_min = 1.5 m plus k = 1 s times the closing speed, whatever the "
-              "speeds.", "", "## Training (end of training: the last 5% of the 20M steps; mean over seeds, 95% Student-t CI)",
+              "speeds.", "",
+              "## Training (end of training: the last 5% of the 20M steps; mean over seeds, 95% Student-t CI)",
               "", "| agent | seeds | J_r | J_c | rho_c | v_x [m/s] |", "|---|---|---|---|---|---|"]
     for agent, r in result["training"].items():
         cell = lambda key, digits, r=r: (f"{r[key]:.{digits}f}" + (  # noqa: E731
@@ -187,10 +193,12 @@ def markdown(result: dict) -> str:
         lines.append(f"| {TRAINING_AGENTS[agent]} | {len(r['seeds'])} | {cell('return', 0)} | {cell('cost_return', 3)} "
                      f"| {cell('cost_rate', 6)} | {cell('vx', 2)} |")
     claim = result["training_claim"]
-    lines += ["", f"The paper's training claim for PPO-L-RSS ({claim['statement']}): **{'holds' if claim['holds'] else 'fails'}**"
+    verdict = "holds" if claim["holds"] else "fails"
+    lines += ["", f"The paper's training claim for PPO-L-RSS ({claim['statement']}): **{verdict}**"
               f" (cost-rate ratio PPO-L-RSS / PPO {claim['cost_rate_ratio_rss_over_ppo']:.2f}, return difference "
               f"{claim['return_difference_rss_minus_ppo']:+.0f}; per seed: "
-              + ", ".join(f"seed {s}: {'holds' if v['holds'] else 'fails'}" for s, v in claim["per_seed"].items()) + ")."]
+              + ", ".join(f"seed {s}: {'holds' if v['holds'] else 'fails'}" for s, v in claim["per_seed"].items())
+              + ")."]
     lines += ["", "## Evaluation (1000 episodes per traffic level on the table's seeds; 95% CIs)", ""]
     for traffic in TRAFFIC:
         rows = result["evaluation"][traffic]
@@ -213,7 +221,8 @@ def markdown(result: dict) -> str:
                          f"{sign('mean_event_cost', 3)} | {sign('mean_vx', 2)} | {v['J_c']}, {v['v_x']} |")
         lines.append("")
     lines += ["### The policies on fresh seeds (100000 + i, 1000 episodes per traffic level)", "",
-              "| traffic | policy | J_c | v_x [m/s] | ΔJ_c (RSS - SI) | Δv_x [m/s] | verdict |", "|---|---|---|---|---|---|---|"]
+              "| traffic | policy | J_c | v_x [m/s] | ΔJ_c (RSS - SI) | Δv_x [m/s] | verdict |",
+              "|---|---|---|---|---|---|---|"]
     for traffic in TRAFFIC:
         rows = result["confirmation"][traffic]
         d, v = rows["ppo_lsi_rss"]["minus_ppo_lsi"], rows["ppo_lsi_rss"]["verdicts"]
@@ -221,7 +230,8 @@ def markdown(result: dict) -> str:
                      f"{ci(rows['ppo_lsi'], 'mean_vx', 2)} | | | |")
         lines.append(f"| {traffic} | PPO-L-RSS | {ci(rows['ppo_lsi_rss'], 'mean_event_cost', 3)} | "
                      f"{ci(rows['ppo_lsi_rss'], 'mean_vx', 2)} | {d['mean_event_cost']:+.3f} "
-                     f"[{d['mean_event_cost_ci95'][0]:+.3f}, {d['mean_event_cost_ci95'][1]:+.3f}] | {d['mean_vx']:+.2f} "
+                     f"[{d['mean_event_cost_ci95'][0]:+.3f}, {d['mean_event_cost_ci95'][1]:+.3f}] | "
+                     f"{d['mean_vx']:+.2f} "
                      f"[{d['mean_vx_ci95'][0]:+.2f}, {d['mean_vx_ci95'][1]:+.2f}] | {v['J_c']}, {v['v_x']} |")
     lines.append("")
     rec = result["recommendation"]
@@ -248,14 +258,17 @@ def verdicts(result: dict) -> list[str]:
         out.append(f"{traffic}, policy, fresh seeds (100000 + i), PPO-L-RSS against PPO-L-SI: J_c {v['J_c']}, "
                    f"v_x {v['v_x']}.")
     policy = [result["evaluation"][t]["ppo_lsi/ppo_lsi_rss"]["verdicts"] for t in TRAFFIC]
-    proposer = [result["evaluation"][t][f"{m}/ppo_lsi_rss"]["verdicts"] for t in TRAFFIC for m in METHODS if m != "ppo_lsi"]
+    proposer = [result["evaluation"][t][f"{m}/ppo_lsi_rss"]["verdicts"]
+                for t in TRAFFIC for m in METHODS if m != "ppo_lsi"]
     safer_policy = all(v["J_c"] == "safer" for v in policy)
     faster_policy = all(v["v_x"] == "faster" for v in policy)
     better_proposer = (all(v["J_c"] != "less safe" and v["v_x"] != "slower" for v in proposer)
                        and any(v["J_c"] == "safer" or v["v_x"] == "faster" for v in proposer))
-    out.append(f"A safer policy: {'yes' if safer_policy else 'no'}; a faster policy: {'yes' if faster_policy else 'no'} "
+    out.append(f"A safer policy: {'yes' if safer_policy else 'no'}; "
+               f"a faster policy: {'yes' if faster_policy else 'no'} "
                "(PPO-L-RSS against PPO-L-SI, both traffic levels).")
-    out.append(f"A better proposer for SRMPC (no worse on J_c and v_x at both planner settings and traffic levels, better "
+    out.append("A better proposer for SRMPC (no worse on J_c and v_x at both planner settings and traffic levels, "
+               "better "
                f"on one): {'yes' if better_proposer else 'no'}.")
     return out
 

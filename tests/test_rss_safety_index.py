@@ -132,7 +132,8 @@ def test_paper_kind_is_the_papers_index_bit_for_bit():
     rng = np.random.default_rng(1)
     si = SafetyIndexParameters()
     for _ in range(200):
-        ego = np.array([0.0, rng.choice([0.0, 4.0, 8.0]) + rng.normal(0, 0.3), rng.normal(0, 0.02), rng.uniform(15, 30)])
+        ego = np.array([0.0, rng.choice([0.0, 4.0, 8.0]) + rng.normal(0, 0.3), rng.normal(0, 0.02),
+                        rng.uniform(15, 30)])
         others = np.column_stack([rng.uniform(-90, 90, 8), rng.choice([0.0, 4.0, 8.0], 8), np.zeros(8),
                                   rng.uniform(18, 26, 8)])
         _, slots = observe(ego, others, 100.0)

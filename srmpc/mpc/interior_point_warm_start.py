@@ -129,8 +129,8 @@ def solve_in(measured_state, qp, initial_inputs, tolerance, max_iterations, work
     """Solve a ``qp_tuple`` in an ``allocate_workspace``, warm if ``warm`` and ``memory`` is valid, else
     from the cold start about ``initial_inputs`` (as ``solve_ltv_mpc_qp``).
 
-    ``settings``: ``WARM_START_SETTINGS``. Returns (status, iterations, started warm); the solution is in ``workspace[0]``, and in ``memory``
-    for the next call if solved.
+    ``settings``: ``WARM_START_SETTINGS``. Returns (status, iterations, started warm); the solution is in
+    ``workspace[0]``, and in ``memory`` for the next call if solved.
     """
     point, arrays, gradients, newton, direction = workspace
     iterations = 0

@@ -35,6 +35,24 @@ DEGENERATE_NORM = 1e-6
 """Ellipse norm (dimensionless) below which the gradient direction is replaced (module doc)."""
 
 
+@numba.njit(inline="always")
+def closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h, circle_offsets, a, b):
+    """(g, d_c, longitudinal, lateral) of the ego circle c* = argmin_c g(p_c(x)) in the ellipse (a, b) of the
+    vehicle at (ox, oy) with heading (cos_h, sin_h): its norm, its offset [m] and its offset from the centre in
+    the vehicle's frame [m]."""
+    best_norm, best_d, best_l, best_t = np.inf, 0.0, 0.0, 0.0
+    for c in range(circle_offsets.shape[0]):
+        d = circle_offsets[c]
+        dx = px + d * cos_psi - ox
+        dy = py + d * sin_psi - oy
+        longitudinal = cos_h * dx + sin_h * dy
+        lateral = -sin_h * dx + cos_h * dy
+        norm = np.sqrt((longitudinal / a) ** 2 + (lateral / b) ** 2)
+        if norm < best_norm:
+            best_norm, best_d, best_l, best_t = norm, d, longitudinal, lateral
+    return best_norm, best_d, best_l, best_t
+
+
 @numba.njit(cache=True)
 def linearize_ellipse_rows(states, predicted_others, n_others, circle_offsets, semi_axes,
                            coefficients, row_lower, norms):
@@ -64,19 +82,8 @@ def linearize_ellipse_rows(states, predicted_others, n_others, circle_offsets, s
             oy = predicted_others[k + 1, j, 1]
             cos_h = np.cos(predicted_others[k + 1, j, 2])
             sin_h = np.sin(predicted_others[k + 1, j, 2])
-            best_norm = np.inf
-            best_d = 0.0
-            best_l = 0.0
-            best_t = 0.0
-            for c in range(circle_offsets.shape[0]):
-                d = circle_offsets[c]
-                dx = px + d * cos_psi - ox
-                dy = py + d * sin_psi - oy
-                longitudinal = cos_h * dx + sin_h * dy
-                lateral = -sin_h * dx + cos_h * dy
-                norm = np.sqrt((longitudinal / a) ** 2 + (lateral / b) ** 2)
-                if norm < best_norm:
-                    best_norm, best_d, best_l, best_t = norm, d, longitudinal, lateral
+            best_norm, best_d, best_l, best_t = closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h,
+                                                               circle_offsets, a, b)
             if best_norm < DEGENERATE_NORM:
                 grad_l, grad_t = -1.0 / a, 0.0
             else:
@@ -108,11 +115,4 @@ def min_ellipse_norms(states, predicted_others, n_others, circle_offsets, semi_a
             oy = predicted_others[k + 1, j, 1]
             cos_h = np.cos(predicted_others[k + 1, j, 2])
             sin_h = np.sin(predicted_others[k + 1, j, 2])
-            best = np.inf
-            for c in range(circle_offsets.shape[0]):
-                d = circle_offsets[c]
-                dx = px + d * cos_psi - ox
-                dy = py + d * sin_psi - oy
-                norm = np.sqrt(((cos_h * dx + sin_h * dy) / a) ** 2 + ((-sin_h * dx + cos_h * dy) / b) ** 2)
-                best = min(best, norm)
-            norms[k, j] = best
+            norms[k, j] = closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h, circle_offsets, a, b)[0]

@@ -24,8 +24,8 @@ from typing import Protocol
 import numpy as np
 import scipy.sparse as sp
 
-from srmpc.mpc.qp_builder import LtvMpcQp
 from srmpc.mpc.interior_point_warm_start import WARM_START_SETTINGS, allocate_memory, solve_in
+from srmpc.mpc.qp_builder import LtvMpcQp
 from srmpc.mpc.riccati_interior_point import (
     STATUS_NAMES,
     STATUS_SOLVED,
