@@ -15,8 +15,8 @@ the observed vehicles (leader/follower per lane within the perception range, at 
 as ``srmpc/controllers/ltv_mpc.py`` feeds it. An episode that ends in a collision or road exit
 stops there for that solver (counted in ``episodes_ended_by_collision_or_offroad``).
 
-The default solver runs with its warm start on (its default is off until the planner evaluations are
-regenerated with it); the same QPs are re-solved cold for the iteration counts.
+The default solver runs warm-started (as configured); the same QPs are re-solved cold
+(``riccati_ipm_cold``) for the iteration counts.
 
 Usage: python benchmarks/mpc_latency.py [--steps 200] [--episodes 2] [--out PATH]
 """
@@ -74,16 +74,13 @@ def run_interleaved(names: list[str], steps: int, episodes: int, config: OcpConf
     """All solvers drive their own copy of each episode in lockstep: at every step each solver
     plans once (in an order rotating with the step), so machine-load changes hit all alike."""
     reference_solver = make_solver("clarabel")
-    same_qp_solvers = {"piqp_native": make_solver("piqp_native"), "cold": make_solver(DEFAULT_SOLVER, warm_start=False)}
+    same_qp_solvers = {"piqp_native": make_solver("piqp_native"), "cold": make_solver("riccati_ipm_cold")}
     records = {name: {"step": [], "solve": [], "err": [], "it": [], "outcomes": Counter(),
                       "collisions": 0, "same_qp": {"piqp_native": [], "cold": [], "cold_it": []}} for name in names}
     for scene_name, spacing in SCENES.items():
         for episode in range(episodes):
             seed = 1000 * episode + (0 if scene_name == "light" else 1)
             controllers = {name: LtvMpcController(LtvMpcPlanner(config, solver=name)) for name in names}
-            for controller in controllers.values():  # the warm start on, as the targets assume
-                if controller.planner.solver.name == DEFAULT_SOLVER:
-                    controller.planner.solver.warm_start = True
             params = ScenarioParameters(traffic=scene_name, mean_spawn_gap_m=spacing,
                                         vehicles_count=OTHERS_PER_SCENE, episode_steps=steps)
             scenes = {name: TwinScenarioEnv(params) for name in names}

@@ -13,8 +13,8 @@ Method: light and dense twin episodes (the committed config, seeds ``1000 e`` / 
 driven by the paper's SRMPC; at every step each controller (each with its own previous solution)
 computes its action from that same scene, in an order that rotates every step. Process pinned to one
 core, numba and torch on one thread; the first ``--warmup`` steps of each episode are not timed. The
-planners run with the interior point's warm start on (``riccati_ipm``'s default is off until the planner
-evaluations are regenerated with it; ``same_qp`` re-solves each QP cold for the iteration counts).
+planners run as configured (``riccati_ipm``, warm-started); ``same_qp`` re-solves each QP cold for the
+iteration counts.
 """
 
 from __future__ import annotations
@@ -76,12 +76,9 @@ def run(traffic: str, episodes: int, steps: int, warmup: int) -> dict[str, dict[
     configs = {name: to_objects(compose_config(base + overrides)) for name, overrides in CONTROLLERS.items()}
     env = TwinScenarioEnv(configs["srmpc"].scenario)
     controllers = {name: build_controller(config, env) for name, config in configs.items()}
-    for controller in controllers.values():  # the warm start on, as the targets assume (off by default)
-        if hasattr(controller, "planner") and hasattr(controller.planner.solver, "warm_start"):
-            controller.planner.solver.warm_start = True
     samples = {name: {"step": [], "rollout": [], "qp_update": [], "solve": []} for name in controllers}
     same_qp = {"iterations_warm": [], "iterations_cold": [], "solve_us": [], "piqp_native_us": []}
-    same_qp_solvers = {"cold": make_solver("riccati_ipm", warm_start=False), "piqp_native": make_solver("piqp_native")}
+    same_qp_solvers = {"cold": make_solver("riccati_ipm_cold"), "piqp_native": make_solver("piqp_native")}
     names = list(controllers)
     for episode in range(episodes):
         observation, _ = env.reset(seed=1000 * episode + (traffic == "dense"))

@@ -90,8 +90,9 @@ class PlannerConfig:
     horizon_steps: int = _OCP.horizon
     """Prediction horizon N (25 x 0.2 s = 5 s); at most ``MAX_HORIZON_STEPS`` (srmpc/mpc/ocp.py says why)."""
     solver: str = DEFAULT_SOLVER
-    """QP solver: riccati_ipm (default, structure-exploiting interior point), piqp_native, osqp_native,
-    or via qpsolvers osqp, clarabel, piqp, proxqp."""
+    """QP solver: riccati_ipm (default, structure-exploiting interior point, warm-started), riccati_ipm_cold
+    (the same, started cold at every step), piqp_native, osqp_native, or via qpsolvers osqp, clarabel, piqp,
+    proxqp."""
     max_vehicles: int = _OCP.max_vehicles
     """Other-vehicle slots in the QP (the scenario observes at most 6, so at least 6; at most ``MAX_VEHICLE_SLOTS``)."""
     state_weights: list[float] = field(default_factory=lambda: list(_OCP.weights.state))

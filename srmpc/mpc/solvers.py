@@ -9,7 +9,9 @@ Two kinds:
   sparsity pattern; each step only overwrites values with the library's ``update`` and re-solves
   (warm-started for OSQP).  PIQP gets real +-inf for absent bounds.
 - ``riccati_ipm``: our structure-exploiting interior-point method (``riccati_interior_point``),
-  which reads the QP's stage-wise data and never touches the sparse matrices.
+  which reads the QP's stage-wise data and never touches the sparse matrices, warm-started from the
+  shifted previous solution; ``riccati_ipm_cold`` is the same method started cold at every step (the
+  planner's floats before the warm start: select it to reproduce results of revisions before it).
 
 ``make_solver(name, **settings)`` raises ``ValueError`` listing the available names for an
 unknown name (at configuration time, before any episode).
@@ -234,10 +236,6 @@ class OsqpNativeSolver:
         return QpSolution(solved, str(result.info.status), z, int(result.info.iter))
 
 
-WARM_START_BY_DEFAULT = False
-"""Whether ``riccati_ipm`` starts from the shifted previous solution unless told otherwise (see the class)."""
-
-
 class RiccatiInteriorPointSolver:
     """``riccati_interior_point`` on the QP's stage-wise data, in arrays allocated once.
 
@@ -247,9 +245,11 @@ class RiccatiInteriorPointSolver:
     linearized dynamics. Any status other than solved is a failed solve (the planner's fallback chain
     takes over).
 
-    The warm start is off by default (:data:`WARM_START_BY_DEFAULT`): it changes the planner's floats, so it
-    is switched on together with a regeneration of every planner-based evaluation. Off, every plan is bit for
-    bit the committed evaluations' (``tests/mpc/test_compiled_step.py``).
+    ``warm_start=False`` (the solver name ``riccati_ipm_cold``) starts every solve cold: the planner's floats
+    of the revisions before the warm start, bit for bit (``tests/mpc/test_compiled_step.py`` checks that the
+    compiled step and the Python path agree bit for bit in that mode). Warm, the first input stays within
+    1e-3 of Clarabel's (same test) and the interior point takes 7 iterations at the median instead of 9
+    (``results/benchmarks/srmpc_latency.json``).
     """
 
     name = "riccati_ipm"
@@ -257,10 +257,10 @@ class RiccatiInteriorPointSolver:
 
     def __init__(self, tolerance: float = RICCATI_IPM_TOLERANCE,
                  max_iterations: int = RICCATI_IPM_MAX_ITERATIONS,
-                 warm_start: bool | None = None) -> None:
+                 warm_start: bool = True) -> None:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
-        self.warm_start = WARM_START_BY_DEFAULT if warm_start is None else bool(warm_start)
+        self.warm_start = bool(warm_start)
         self.warm_start_settings = WARM_START_SETTINGS
         self.last_started_warm = False
         self._constants_for: LtvMpcQp | None = None
@@ -321,6 +321,10 @@ class RiccatiInteriorPointSolver:
         return QpSolution(True, STATUS_NAMES[status], z, int(iterations))
 
 
+def _riccati_ipm_cold(**settings) -> RiccatiInteriorPointSolver:
+    return RiccatiInteriorPointSolver(**{**settings, "warm_start": False})
+
+
 def _qpsolvers_osqp(**settings) -> QpsolversSolver:
     return QpsolversSolver("osqp", eps_abs=OSQP_TOLERANCE, eps_rel=OSQP_TOLERANCE,
                            polishing=False, max_iter=20000, **settings)
@@ -342,6 +346,7 @@ def _qpsolvers_proxqp(**settings) -> QpsolversSolver:
 
 SOLVER_FACTORIES = {
     "riccati_ipm": RiccatiInteriorPointSolver,
+    "riccati_ipm_cold": _riccati_ipm_cold,
     "piqp_native": PiqpNativeSolver,
     "osqp_native": OsqpNativeSolver,
     "osqp": _qpsolvers_osqp,

@@ -1,8 +1,9 @@
 """The planner's default step as one compiled call (``srmpc.mpc.compiled_step``) against the Python path.
 
-With the interior point's warm start off, the compiled step runs the same kernels in the same order as the
-Python path, so closed loops give bit-identical plans. With the warm start on (the default), every solved
-QP's first input stays within the solver test's 1e-3 of Clarabel at tight tolerance.
+The compiled step runs the same kernels in the same order as the Python path, so closed loops give
+bit-identical plans, warm-started (``riccati_ipm``, the default) or cold (``riccati_ipm_cold``, the planner of
+the revisions before the warm start). Warm-started, every solved QP's first input stays within the solver
+test's 1e-3 of Clarabel at tight tolerance.
 """
 
 import numpy as np
@@ -22,11 +23,12 @@ STEPS = 40
 def closed_loop(controller_name: str, traffic: str, compiled: bool, warm: bool, clarabel=None):
     """Plans (first input, states, inputs per step) of a closed loop; with ``clarabel``, also
     |u0 - u0_clarabel| of every solved step's QP."""
+    solver = "riccati_ipm" if warm else "riccati_ipm_cold"
     config = to_objects(compose_config([f"+experiment={traffic}_traffic", "tracking.enabled=false",
-                                        f"evaluation.controller={controller_name}"]))
+                                        f"evaluation.controller={controller_name}", f"planner.solver={solver}"]))
     env = TwinScenarioEnv(config.scenario)
     controller = build_controller(config, env)
-    controller.planner.solver.warm_start = warm
+    assert controller.planner.solver.warm_start is warm
     if not compiled:
         controller.planner.compiled_step = lambda: None
         if hasattr(controller, "compiled_step"):
@@ -51,9 +53,10 @@ def closed_loop(controller_name: str, traffic: str, compiled: bool, warm: bool, 
 
 @pytest.mark.parametrize("controller_name", ["ltv_mpc", "srmpc"])
 @pytest.mark.parametrize("traffic", ["light", "dense"])
-def test_compiled_step_is_bit_identical_to_the_python_path_when_cold(controller_name, traffic):
-    compiled, _, _ = closed_loop(controller_name, traffic, compiled=True, warm=False)
-    python, _, _ = closed_loop(controller_name, traffic, compiled=False, warm=False)
+@pytest.mark.parametrize("warm", [True, False], ids=["warm", "cold"])
+def test_compiled_step_is_bit_identical_to_the_python_path(controller_name, traffic, warm):
+    compiled, _, _ = closed_loop(controller_name, traffic, compiled=True, warm=warm)
+    python, _, _ = closed_loop(controller_name, traffic, compiled=False, warm=warm)
     assert compiled.shape == python.shape
     assert np.array_equal(compiled, python)
 

@@ -57,7 +57,7 @@ def test_all_solvers_agree_on_first_input(loaded_qp):
     reference = make_solver("clarabel").solve(qp)
     assert reference.solved
     u0_reference = qp.split_solution(reference.z)[1][0]
-    for name in ("osqp", "piqp", "proxqp", "piqp_native", "osqp_native", "riccati_ipm"):
+    for name in ("osqp", "piqp", "proxqp", "piqp_native", "osqp_native", "riccati_ipm", "riccati_ipm_cold"):
         solution = make_solver(name).solve(qp)
         assert solution.solved, name
         u0 = qp.split_solution(solution.z)[1][0]
