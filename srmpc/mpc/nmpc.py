@@ -86,11 +86,11 @@ import numba
 import numpy as np
 
 from srmpc.mpc.compiled_step import cycles_to_us, read_cycle_counter
-from srmpc.mpc.interior_point_warm_start import solve_in
 from srmpc.mpc.nmpc_kernels import (
     SAFETY_SLACK_UPPER,
     NlpConstants,
     Subproblem,
+    allocate_compact,
     allocate_scratch,
     anderson_point,
     infeasibility,
@@ -101,11 +101,12 @@ from srmpc.mpc.nmpc_kernels import (
     point_size,
     qp_candidate,
     screen,
+    solve_subproblem,
 )
 from srmpc.mpc.nonlinear_constraints import vehicle_frames
 from srmpc.mpc.ocp import OcpConfig
 from srmpc.mpc.qp_builder import LtvMpcQp
-from srmpc.mpc.riccati_interior_point import STATUS_SOLVED, qp_tuple
+from srmpc.mpc.riccati_interior_point import STATUS_SOLVED
 from srmpc.mpc.solvers import RiccatiInteriorPointSolver
 from srmpc.mpc.vehicle_model import KinematicBicycle
 
@@ -229,7 +230,7 @@ Anderson's rings of the last m + 1 pairs (w, G(w)) (m + 1, len(w) at V slots).""
 
 @numba.njit(cache=True, error_model="numpy")
 def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_settings, workspace, memory,
-         scratch, record, w):
+         compact, scratch, record, w):
     """The SQP of the module doc from the guess, on the QP subproblem's arrays ``qp`` (whose measured state,
     last input and tracking reference are set). Leaves the last iterate in w; returns (status code,
     iterations, line searches, F, theta_1, theta_inf, ||p||_inf, nu, accelerated steps)."""
@@ -246,19 +247,13 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
     penalty, stationarity, status = 0.0, np.inf, _MAX_ITERATIONS
     iterations, line_searches, accelerated_steps = 0, 0, 0
     capacity, oldest, stored = record.iterates.shape[0], 0, 0
-    qp_constants = qp_settings.constants
     for _ in range(settings.max_iterations):
         # 1. QP subproblem, linearized about w (screened rows), solved by the Riccati interior point
         n_collision, n_safety = screen(w, horizon, n_obs, frames, nlp, scratch, qp.collision_rows, qp.safety_rows)
         n_rows = linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, nlp, qp)
-        problem = qp_tuple(last_input, qp.state_matrices, qp.input_matrices, qp.affine_offsets, tracking_reference,
-                           qp.coefficients, qp.row_lower, qp.sigma_upper, n_rows,
-                           qp_constants.state_weight_hessian, qp_constants.input_weight_hessian,
-                           qp_constants.rate_hessian, qp_constants.slack_weights, qp_constants.bounds)
         started = read_cycle_counter()
-        qp_status, qp_iterations, _ = solve_in(measured_state, problem, qp.linearization_inputs,
-                                               qp_settings.tolerance, qp_settings.max_iterations, workspace,
-                                               memory, qp_settings.warm_start, qp_settings.warm_start_settings)
+        qp_status, qp_iterations, solution = solve_subproblem(qp, n_rows, measured_state, qp_settings, workspace,
+                                                              memory, compact)
         record.qp_cycles[iterations] = read_cycle_counter() - started
         record.qp_iterations[iterations] = qp_iterations
         record.qp_rows[iterations] = n_rows
@@ -266,7 +261,7 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
         if qp_status != STATUS_SOLVED:
             status = _QP_FAILED
             break
-        if not qp_candidate(w, horizon, n_obs, workspace[0], n_collision, n_safety, qp, candidate):
+        if not qp_candidate(w, horizon, n_obs, solution, n_collision, n_safety, qp, candidate):
             memory.valid[0] = False
             status = _QP_FAILED
             break
@@ -392,6 +387,7 @@ class NmpcSolver:
         self._qp_settings = QpSettings(solver.constants, solver.tolerance, solver.max_iterations, solver.warm_start,
                                        tuple(solver.warm_start_settings))
         self._scratch = allocate_scratch(horizon, n_slots)
+        self._compact = allocate_compact(horizon, 2 * n_slots)
         iterations, size = max(settings.max_iterations, 1), point_size(horizon, n_slots)
         self._record = SqpRecord(np.zeros(iterations, dtype=np.uint64), np.zeros(iterations, dtype=np.int64),
                                  np.zeros(iterations, dtype=np.int64), np.zeros(iterations), np.zeros(iterations),
@@ -479,7 +475,7 @@ class NmpcSolver:
         (status, iterations, line_searches, value, theta_1, theta_inf, stationarity, penalty,
          accelerated_steps) = _sqp(
             others, n_obs, initial_states, initial_inputs, self.nlp, self._sqp_settings, self._subproblem,
-            self._qp_settings, self.qp_solver.workspace, self.qp_solver.memory, self._scratch, record, w)
+            self._qp_settings, self.qp_solver.workspace, self.qp_solver.memory, self._compact, self._scratch, record, w)
         if iterations:
             qp.n_observed = int(record.qp_rows[iterations - 1])
             qp._sparse_values_stale = True  # the stage-wise arrays changed (as after ``LtvMpcQp.update``)

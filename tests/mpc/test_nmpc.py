@@ -13,11 +13,14 @@ import numpy as np
 import pytest
 
 from srmpc.mpc.collision import collision_norms
+from srmpc.mpc.interior_point_warm_start import allocate_memory
 from srmpc.mpc.nmpc import NmpcSettings, NmpcSolver, _Point
-from srmpc.mpc.nmpc_kernels import _next_state, pairwise_sum
+from srmpc.mpc.nmpc_kernels import _next_state, allocate_compact, pairwise_sum, solve_subproblem
 from srmpc.mpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms, vehicle_frames
 from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
 from srmpc.mpc.ocp import OcpConfig
+from srmpc.mpc.riccati_interior_point import allocate_workspace
+from srmpc.mpc.solvers import RiccatiInteriorPointSolver
 
 STATES = Path(__file__).parent.parent / "data" / "nmpc_states.npz"
 
@@ -238,3 +241,35 @@ def test_next_state_is_the_model_step_bit_for_bit(solver):
         following = np.empty(4)
         _next_state(state, control, tuple(model._args), following)
         np.testing.assert_array_equal(following, model.step(state, control))
+
+
+@pytest.mark.parametrize("warm", [True, False])
+def test_compact_subproblem_is_the_full_qp_bit_for_bit(states, warm):
+    """The SQP solves each QP on max(rows, 1) slots (``solve_subproblem``); the same QP on all 2V slots through
+    ``RiccatiInteriorPointSolver.solve`` gives the same iterations, solution and warm-start memory, bit for bit."""
+    solver = NmpcSolver(OcpConfig())
+    horizon = solver.config.horizon
+    for i in range(states["ego"].shape[0]):
+        ego, last_input, others, tracking = planner_inputs(states, i)
+        solver.solve(ego, last_input, others, tracking, states["cv_states"][i], states["cv_inputs"][i])
+        qp, rows = solver.qp, solver.qp.n_observed  # the last subproblem; the memory holds its solution
+        full = RiccatiInteriorPointSolver(tolerance=solver.settings.qp_tolerance)
+        full.bind(qp)
+        compact_memory = allocate_memory(horizon, 2 * solver.config.max_vehicles, solver.qp_solver.memory.z.size)
+        for target in (full.memory, compact_memory):
+            for mine, theirs in zip(target, solver.qp_solver.memory, strict=True):
+                mine[...] = theirs
+            target.valid[0] = warm
+        expected = full.solve(qp)
+        status, iterations, solution = solve_subproblem(
+            solver._subproblem, rows, qp.measured_state, solver._qp_settings,
+            allocate_workspace(horizon, 2 * solver.config.max_vehicles), compact_memory,
+            allocate_compact(horizon, 2 * solver.config.max_vehicles))
+        assert expected.solved and status == 0 and iterations == expected.iterations, i
+        full_states, full_inputs, full_slacks, full_sigmas = qp.split_solution(expected.z)
+        np.testing.assert_array_equal(solution.states, full_states)
+        np.testing.assert_array_equal(solution.inputs, full_inputs)
+        np.testing.assert_array_equal(solution.slacks[:rows], full_slacks[:rows])
+        np.testing.assert_array_equal(solution.sigmas[:, :rows], full_sigmas[:, :rows])
+        for mine, theirs in zip(compact_memory, full.memory, strict=True):
+            np.testing.assert_array_equal(mine, theirs)
