@@ -70,9 +70,12 @@ Implementation: the whole SQP is one compiled call, ``_sqp``, steps 1-4 above in
 w (``nmpc_kernels``: F, theta, screening, the subproblem's assembly, Anderson's point) and on arrays allocated
 once per solver: the QP's stage-wise arrays (``LtvMpcQp``, which keeps the last subproblem) and the Riccati
 solver's workspace and warm-start memory (``RiccatiInteriorPointSolver``; every QP starts from the previous
-one's solution shifted by one stage, across solves too, as that solver's ``solve`` starts it). F and theta
-are summed in numpy's order and Anderson's least squares is numpy's LAPACK call, so every decision and
-iterate equals that of the numpy implementation of earlier revisions (``tests/mpc/test_nmpc.py``).
+one's solution shifted by one stage, across solves too, as that solver's ``solve`` starts it). Each QP is
+solved on max(rows, 1) vehicle slots instead of 2V (``nmpc_kernels.solve_subproblem``), with the same floats.
+F and theta are summed in numpy's order and Anderson's least squares is numpy's LAPACK call, so every
+decision and iterate equals that of the numpy implementation of earlier revisions, bit for bit
+(``tests/mpc/test_nmpc.py`` tests the pieces; all 900 solves of ``benchmarks/nmpc_initial_guess.py``'s states
+were compared).
 """
 
 from __future__ import annotations
@@ -228,6 +231,45 @@ SqpRecord = namedtuple("SqpRecord", ["qp_cycles", "qp_iterations", "qp_rows", "s
 Anderson's rings of the last m + 1 pairs (w, G(w)) (m + 1, len(w) at V slots)."""
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _line_search(w, step, candidate, value_full, merit, derivative, penalty, settings, n_obs, frames, qp, nlp,
+                 scratch, trial):
+    """Backtracking alpha = 1, b, b^2, ... >= ``min_step`` until phi(w + alpha p) <= phi(w) + eta alpha D
+    (module doc, step 3; the full step is the QP's point itself); the trial point in ``trial``. Returns
+    (accepted, alpha, F, theta_1, theta_inf, phi) of the last trial."""
+    horizon = qp.linearization_inputs.shape[0]
+    alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit = 1.0, value_full, 0.0, 0.0, 0.0
+    while alpha >= settings.min_step:
+        if alpha == 1.0:
+            trial[:] = candidate
+            trial_value = value_full
+        else:
+            for i in range(w.shape[0]):
+                trial[i] = w[i] + alpha * step[i]
+            trial_value = objective(trial, horizon, n_obs, qp.tracking_reference, qp.last_input, nlp, scratch.terms)
+        trial_theta_1, trial_theta_inf = infeasibility(trial, horizon, n_obs, qp.measured_state, frames, nlp, scratch)
+        trial_merit = trial_value + penalty * trial_theta_1
+        if trial_merit <= merit + settings.armijo * alpha * derivative + 1e-12 * abs(merit):
+            return True, alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit
+        alpha *= settings.backtracking
+    return False, alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _remember_pair(iterates, images, oldest, stored, w, image):
+    """Append (w, G(w)) to Anderson's rings (m + 1 slots; the oldest pair is dropped when full); returns the
+    new (oldest slot, pairs stored)."""
+    capacity = iterates.shape[0]
+    slot = (oldest + stored) % capacity
+    if stored < capacity:
+        stored += 1
+    else:
+        oldest = (oldest + 1) % capacity
+    iterates[slot, :w.shape[0]] = w
+    images[slot, :w.shape[0]] = image
+    return oldest, stored
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_settings, workspace, memory,
          compact, scratch, record, w):
@@ -246,7 +288,7 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
     theta_1, theta_inf = infeasibility(w, horizon, n_obs, measured_state, frames, nlp, scratch)
     penalty, stationarity, status = 0.0, np.inf, _MAX_ITERATIONS
     iterations, line_searches, accelerated_steps = 0, 0, 0
-    capacity, oldest, stored = record.iterates.shape[0], 0, 0
+    oldest, stored = 0, 0  # Anderson's pairs: the ring's oldest slot and the pairs it holds
     for _ in range(settings.max_iterations):
         # 1. QP subproblem, linearized about w (screened rows), solved by the Riccati interior point
         n_collision, n_safety = screen(w, horizon, n_obs, frames, nlp, scratch, qp.collision_rows, qp.safety_rows)
@@ -277,7 +319,7 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
         # 3. penalty update (F quadratic: exact first/second-order terms) and merit line search
         value_full = objective(candidate, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
         for i in range(size):
-            backward[i] = w[i] + -1.0 * step[i]
+            backward[i] = w[i] + -1.0 * step[i]  # w - p, computed as w + alpha p with alpha = -1
         value_backward = objective(backward, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
         gradient_step = 0.5 * (value_full - value_backward)
         model_decrease = value_full - value
@@ -287,23 +329,9 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
                 penalty = required + settings.penalty_margin
         derivative = gradient_step - penalty * theta_1
         merit = value + penalty * theta_1
-        alpha, accepted = 1.0, False
-        trial_value, trial_theta_1, trial_theta_inf, trial_merit = value_full, 0.0, 0.0, 0.0
-        while alpha >= settings.min_step:
-            if alpha == 1.0:
-                trial[:] = candidate
-                trial_value = value_full
-            else:
-                for i in range(size):
-                    trial[i] = w[i] + alpha * step[i]
-                trial_value = objective(trial, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
-            trial_theta_1, trial_theta_inf = infeasibility(trial, horizon, n_obs, measured_state, frames, nlp,
-                                                           scratch)
-            trial_merit = trial_value + penalty * trial_theta_1
-            if trial_merit <= merit + settings.armijo * alpha * derivative + 1e-12 * abs(merit):
-                accepted = True
-                break
-            alpha *= settings.backtracking
+        accepted, alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit = _line_search(
+            w, step, candidate, value_full, merit, derivative, penalty, settings, n_obs, frames, qp, nlp, scratch,
+            trial)
         record.step_lengths[line_searches] = alpha if accepted else 0.0
         line_searches += 1
         if not accepted:
@@ -319,13 +347,7 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
         if alpha < 1.0:
             oldest, stored = 0, 0
         else:
-            slot = (oldest + stored) % capacity
-            if stored < capacity:
-                stored += 1
-            else:
-                oldest = (oldest + 1) % capacity
-            record.iterates[slot, :size] = w
-            record.images[slot, :size] = candidate
+            oldest, stored = _remember_pair(record.iterates, record.images, oldest, stored, w, candidate)
             if stored >= 2 and settings.anderson_depth > 0:
                 anderson_point(record.iterates, record.images, oldest, stored, horizon, n_obs, measured_state, nlp,
                                accelerated)
