@@ -380,7 +380,9 @@ class NmpcSolver:
         horizon, n_slots = config.horizon, config.max_vehicles
         self.qp = LtvMpcQp(dataclasses.replace(config, max_vehicles=2 * n_slots))
         self.model = KinematicBicycle(config.bicycle)
-        self.qp_solver = RiccatiInteriorPointSolver(tolerance=settings.qp_tolerance)
+        # cold-started QPs: the planner's warm start shifts the last solution by one control step, but the QPs
+        # of one SQP solve are all at the same instant
+        self.qp_solver = RiccatiInteriorPointSolver(tolerance=settings.qp_tolerance, warm_start=False)
         self.qp_solver.bind(self.qp)
         geometry, weights = config.geometry, config.weights
         self.nlp = NlpConstants(
