@@ -65,31 +65,61 @@ grows with its rows (one backward Riccati pass per row's slack), so this is what
 
 The initial guess (x, u) is clipped into the input and state boxes, x_0 set to x_hat, and the
 slacks start at the smallest values that satisfy the (exact) collision and safety constraints.
+
+Implementation: the whole SQP is one compiled call, ``_sqp``, steps 1-4 above in that order, on flat points
+w (``nmpc_kernels``: F, theta, screening, the subproblem's assembly, Anderson's point) and on arrays allocated
+once per solver: the QP's stage-wise arrays (``LtvMpcQp``, which keeps the last subproblem) and the Riccati
+solver's workspace and warm-start memory (``RiccatiInteriorPointSolver``; every QP starts from the previous
+one's solution shifted by one stage, across solves too, as that solver's ``solve`` starts it). Each QP is
+solved on max(rows, 1) vehicle slots instead of 2V (``nmpc_kernels.solve_subproblem``), with the same floats.
+F and theta are summed in numpy's order and Anderson's least squares is numpy's LAPACK call, so every
+decision and iterate equals that of the numpy implementation of earlier revisions, bit for bit
+(``tests/mpc/test_nmpc.py`` tests the pieces; all 900 solves of ``benchmarks/nmpc_initial_guess.py``'s states
+were compared).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections import deque
+from collections import namedtuple
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
-from srmpc.mpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms
+from srmpc.mpc.compiled_step import cycles_to_us, read_cycle_counter
+from srmpc.mpc.nmpc_kernels import (
+    SAFETY_SLACK_UPPER,
+    NlpConstants,
+    Subproblem,
+    allocate_compact,
+    allocate_scratch,
+    anderson_point,
+    infeasibility,
+    initial_point,
+    linearize_subproblem,
+    objective,
+    point_parts,
+    point_size,
+    qp_candidate,
+    screen,
+    solve_subproblem,
+)
+from srmpc.mpc.nonlinear_constraints import vehicle_frames
 from srmpc.mpc.ocp import OcpConfig
 from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.riccati_interior_point import STATUS_SOLVED
 from srmpc.mpc.solvers import RiccatiInteriorPointSolver
 from srmpc.mpc.vehicle_model import KinematicBicycle
-
-SAFETY_SLACK_UPPER = 10.0
-"""Upper box of the safety slacks sigma_kj in the QP subproblem (ellipse-norm units, dimensionless).
-Never active at an NLP solution (sigma = max(0, 1 - g') <= 1); it only bounds the QP's interior."""
 
 STATUS_CONVERGED = "converged"
 STATUS_MAX_ITERATIONS = "max_iterations"
 STATUS_LINE_SEARCH_FAILED = "line_search_failed"
 STATUS_QP_FAILED = "qp_failed"
+STATUSES = (STATUS_CONVERGED, STATUS_MAX_ITERATIONS, STATUS_LINE_SEARCH_FAILED, STATUS_QP_FAILED)
+"""The statuses by ``_sqp``'s status code (their index)."""
+_CONVERGED, _MAX_ITERATIONS, _LINE_SEARCH_FAILED, _QP_FAILED = range(4)
 
 
 @dataclass(frozen=True)
@@ -140,7 +170,8 @@ class NmpcResult:
         primal_infeasibility: theta_inf at the plan.
         stationarity: ||p||_inf of the last QP step.
         merit: phi_nu at the plan, penalty: nu.
-        qp_times_s: wall time of each QP solve [s]; qp_iterations: interior-point iterations.
+        qp_times_s: wall time of each QP solve [s] (the CPU's cycle counter); qp_iterations: interior-point
+            iterations.
         step_lengths: the line search's alpha per iteration.
         step_norms: ||p||_inf of each QP step (the stationarity measure per iteration).
         qp_rows: vehicle rows (collision + safety) in each QP after screening.
@@ -186,28 +217,152 @@ class _Point:
     slacks: np.ndarray
     sigmas: np.ndarray
 
-    def plus(self, step: _Point, alpha: float) -> _Point:
-        return _Point(self.states + alpha * step.states, self.inputs + alpha * step.inputs,
-                      self.slacks + alpha * step.slacks, self.sigmas + alpha * step.sigmas)
 
-    def minus(self, other: _Point) -> _Point:
-        return _Point(self.states - other.states, self.inputs - other.inputs,
-                      self.slacks - other.slacks, self.sigmas - other.sigmas)
+SqpSettings = namedtuple("SqpSettings", [
+    "primal_tolerance", "stationarity_tolerance", "max_iterations", "armijo", "backtracking", "min_step",
+    "descent_fraction", "penalty_margin", "anderson_depth"])
+"""``NmpcSettings``' SQP part, as ``_sqp`` reads it."""
+QpSettings = namedtuple("QpSettings", ["constants", "tolerance", "max_iterations", "warm_start",
+                                       "warm_start_settings"])
+"""The Riccati solver's ``SolverConstants`` and settings (``RiccatiInteriorPointSolver``)."""
+SqpRecord = namedtuple("SqpRecord", ["qp_cycles", "qp_iterations", "qp_rows", "step_norms", "step_lengths",
+                                     "iterates", "images"])
+"""Per iteration (max_iterations,): the QP's cycles, interior-point iterations and rows, ||p||_inf, alpha;
+Anderson's rings of the last m + 1 pairs (w, G(w)) (m + 1, len(w) at V slots)."""
 
-    def flat(self) -> np.ndarray:
-        return np.concatenate([self.states.ravel(), self.inputs.ravel(), self.slacks, self.sigmas.ravel()])
 
-    def unflat(self, flat: np.ndarray) -> _Point:
-        """A point shaped like this one from ``flat`` (the layout of ``flat()``)."""
-        parts, start = [], 0
-        for array in (self.states, self.inputs, self.slacks, self.sigmas):
-            parts.append(flat[start:start + array.size].reshape(array.shape).copy())
-            start += array.size
-        return _Point(*parts)
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _line_search(w, step, candidate, value_full, merit, derivative, penalty, settings, n_obs, frames, qp, nlp,
+                 scratch, trial):
+    """Backtracking alpha = 1, b, b^2, ... >= ``min_step`` until phi(w + alpha p) <= phi(w) + eta alpha D
+    (module doc, step 3; the full step is the QP's point itself); the trial point in ``trial``. Returns
+    (accepted, alpha, F, theta_1, theta_inf, phi) of the last trial."""
+    horizon = qp.linearization_inputs.shape[0]
+    alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit = 1.0, value_full, 0.0, 0.0, 0.0
+    while alpha >= settings.min_step:
+        if alpha == 1.0:
+            trial[:] = candidate
+            trial_value = value_full
+        else:
+            for i in range(w.shape[0]):
+                trial[i] = w[i] + alpha * step[i]
+            trial_value = objective(trial, horizon, n_obs, qp.tracking_reference, qp.last_input, nlp, scratch.terms)
+        trial_theta_1, trial_theta_inf = infeasibility(trial, horizon, n_obs, qp.measured_state, frames, nlp, scratch)
+        trial_merit = trial_value + penalty * trial_theta_1
+        if trial_merit <= merit + settings.armijo * alpha * derivative + 1e-12 * abs(merit):
+            return True, alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit
+        alpha *= settings.backtracking
+    return False, alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit
 
-    def max_abs(self) -> float:
-        return max(np.abs(self.states).max(), np.abs(self.inputs).max(),
-                   np.abs(self.slacks).max(initial=0.0), np.abs(self.sigmas).max(initial=0.0))
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _remember_pair(iterates, images, oldest, stored, w, image):
+    """Append (w, G(w)) to Anderson's rings (m + 1 slots; the oldest pair is dropped when full); returns the
+    new (oldest slot, pairs stored)."""
+    capacity = iterates.shape[0]
+    slot = (oldest + stored) % capacity
+    if stored < capacity:
+        stored += 1
+    else:
+        oldest = (oldest + 1) % capacity
+    iterates[slot, :w.shape[0]] = w
+    images[slot, :w.shape[0]] = image
+    return oldest, stored
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_settings, workspace, memory,
+         compact, scratch, record, w):
+    """The SQP of the module doc from the guess, on the QP subproblem's arrays ``qp`` (whose measured state,
+    last input and tracking reference are set). Leaves the last iterate in w; returns (status code,
+    iterations, line searches, F, theta_1, theta_inf, ||p||_inf, nu, accelerated steps)."""
+    measured_state, last_input, tracking_reference = qp.measured_state, qp.last_input, qp.tracking_reference
+    horizon = initial_inputs.shape[0]
+    size = point_size(horizon, n_obs)
+    candidate, step, trial, backward, accelerated = (np.empty(size), np.empty(size), np.empty(size),
+                                                     np.empty(size), np.empty(size))
+    frames = np.empty((horizon + 1, n_obs, 4))
+    vehicle_frames(others, n_obs, frames)
+    initial_point(measured_state, frames, n_obs, initial_states, initial_inputs, nlp, scratch, w)
+    value = objective(w, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
+    theta_1, theta_inf = infeasibility(w, horizon, n_obs, measured_state, frames, nlp, scratch)
+    penalty, stationarity, status = 0.0, np.inf, _MAX_ITERATIONS
+    iterations, line_searches, accelerated_steps = 0, 0, 0
+    oldest, stored = 0, 0  # Anderson's pairs: the ring's oldest slot and the pairs it holds
+    for _ in range(settings.max_iterations):
+        # 1. QP subproblem, linearized about w (screened rows), solved by the Riccati interior point
+        n_collision, n_safety = screen(w, horizon, n_obs, frames, nlp, scratch, qp.collision_rows, qp.safety_rows)
+        n_rows = linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, nlp, qp)
+        started = read_cycle_counter()
+        qp_status, qp_iterations, solution = solve_subproblem(qp, n_rows, measured_state, qp_settings, workspace,
+                                                              memory, compact)
+        record.qp_cycles[iterations] = read_cycle_counter() - started
+        record.qp_iterations[iterations] = qp_iterations
+        record.qp_rows[iterations] = n_rows
+        iterations += 1
+        if qp_status != STATUS_SOLVED:
+            status = _QP_FAILED
+            break
+        if not qp_candidate(w, horizon, n_obs, solution, n_collision, n_safety, qp, candidate):
+            memory.valid[0] = False
+            status = _QP_FAILED
+            break
+        # 2. convergence (KKT): theta_inf at w and the step p = w_QP - w
+        stationarity = 0.0
+        for i in range(size):
+            step[i] = candidate[i] - w[i]
+            stationarity = max(stationarity, abs(step[i]))
+        record.step_norms[iterations - 1] = stationarity
+        if theta_inf <= settings.primal_tolerance and stationarity <= settings.stationarity_tolerance:
+            status = _CONVERGED
+            break
+        # 3. penalty update (F quadratic: exact first/second-order terms) and merit line search
+        value_full = objective(candidate, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
+        for i in range(size):
+            backward[i] = w[i] + -1.0 * step[i]  # w - p, computed as w + alpha p with alpha = -1
+        value_backward = objective(backward, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
+        gradient_step = 0.5 * (value_full - value_backward)
+        model_decrease = value_full - value
+        if theta_1 > 0.0:
+            required = model_decrease / ((1.0 - settings.descent_fraction) * theta_1)
+            if penalty < required:
+                penalty = required + settings.penalty_margin
+        derivative = gradient_step - penalty * theta_1
+        merit = value + penalty * theta_1
+        accepted, alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit = _line_search(
+            w, step, candidate, value_full, merit, derivative, penalty, settings, n_obs, frames, qp, nlp, scratch,
+            trial)
+        record.step_lengths[line_searches] = alpha if accepted else 0.0
+        line_searches += 1
+        if not accepted:
+            status = _LINE_SEARCH_FAILED
+            break
+        if (alpha == 1.0 and trial_theta_inf <= settings.primal_tolerance
+                and stationarity <= settings.stationarity_tolerance):
+            w[:] = trial
+            value, theta_1, theta_inf = trial_value, trial_theta_1, trial_theta_inf
+            status = _CONVERGED
+            break
+        # 4. Anderson acceleration of the full-step iteration: its point replaces the step if its merit is lower
+        if alpha < 1.0:
+            oldest, stored = 0, 0
+        else:
+            oldest, stored = _remember_pair(record.iterates, record.images, oldest, stored, w, candidate)
+            if stored >= 2 and settings.anderson_depth > 0:
+                anderson_point(record.iterates, record.images, oldest, stored, horizon, n_obs, measured_state, nlp,
+                               accelerated)
+                accelerated_value = objective(accelerated, horizon, n_obs, tracking_reference, last_input, nlp,
+                                              scratch.terms)
+                accelerated_theta_1, accelerated_theta_inf = infeasibility(accelerated, horizon, n_obs,
+                                                                           measured_state, frames, nlp, scratch)
+                if accelerated_value + penalty * accelerated_theta_1 < trial_merit:
+                    trial[:] = accelerated
+                    trial_value, trial_theta_1, trial_theta_inf = (accelerated_value, accelerated_theta_1,
+                                                                   accelerated_theta_inf)
+                    accelerated_steps += 1
+        w[:] = trial
+        value, theta_1, theta_inf = trial_value, trial_theta_1, trial_theta_inf
+    return status, iterations, line_searches, value, theta_1, theta_inf, stationarity, penalty, accelerated_steps
 
 
 class NmpcSolver:
@@ -221,141 +376,104 @@ class NmpcSolver:
     def __init__(self, config: OcpConfig | None = None, settings: NmpcSettings | None = None) -> None:
         self.config = config or OcpConfig()
         self.settings = settings or NmpcSettings()
-        self.qp = LtvMpcQp(dataclasses.replace(self.config, max_vehicles=2 * self.config.max_vehicles))
-        self.model = KinematicBicycle(self.config.bicycle)
-        self.qp_solver = RiccatiInteriorPointSolver(tolerance=self.settings.qp_tolerance)
-        geometry = self.config.geometry
-        self.circle_offsets = np.asarray(geometry.circle_offsets_m, dtype=np.float64)
-        self.collision_semi_axes = np.asarray(geometry.collision_semi_axes_m, dtype=np.float64)
-        self.safety_semi_axes = np.asarray(geometry.safety_semi_axes_m, dtype=np.float64)
-        weights = self.config.weights
-        self._q = np.asarray(weights.state, dtype=np.float64)
-        self._r = np.asarray(weights.input, dtype=np.float64)
-        self._s = np.asarray(weights.input_rate, dtype=np.float64)
-        config = self.config
-        self._input_lower = np.array([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]])
-        self._input_upper = np.array([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]])
-        self._state_lower = np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_m_s[0]])
-        self._state_upper = np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_m_s[1]])
+        config, settings = self.config, self.settings
+        horizon, n_slots = config.horizon, config.max_vehicles
+        self.qp = LtvMpcQp(dataclasses.replace(config, max_vehicles=2 * n_slots))
+        self.model = KinematicBicycle(config.bicycle)
+        # cold-started QPs: the planner's warm start shifts the last solution by one control step, but the QPs
+        # of one SQP solve are all at the same instant
+        self.qp_solver = RiccatiInteriorPointSolver(tolerance=settings.qp_tolerance, warm_start=False)
+        self.qp_solver.bind(self.qp)
+        geometry, weights = config.geometry, config.weights
+        self.nlp = NlpConstants(
+            tuple(self.model._args), np.asarray(geometry.circle_offsets_m, dtype=np.float64),
+            np.asarray(geometry.collision_semi_axes_m, dtype=np.float64),
+            np.asarray(geometry.safety_semi_axes_m, dtype=np.float64), np.asarray(weights.state, dtype=np.float64),
+            np.asarray(weights.input, dtype=np.float64), np.asarray(weights.input_rate, dtype=np.float64),
+            np.array([weights.collision_slack_linear, weights.collision_slack_quadratic, weights.safety_slack_linear,
+                      weights.safety_slack_quadratic], dtype=np.float64),
+            np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_m_s[0]]),
+            np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_m_s[1]]),
+            np.array([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]]),
+            np.array([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]]),
+            float(settings.screening_norm))
+        qp = self.qp
+        self._subproblem = Subproblem(
+            qp.measured_state, qp.last_input, qp.tracking_reference, qp.linearization_inputs, qp.next_states,
+            qp.state_matrices, qp.input_matrices, qp.affine_offsets, qp.collision_coefficients,
+            qp.collision_row_lower, qp.safety_slack_upper, np.zeros((horizon + 1, 2 * n_slots, 4)),
+            np.zeros((horizon, 2 * n_slots)), np.zeros(n_slots, dtype=np.int64), np.zeros(n_slots, dtype=np.int64))
+        self._sqp_settings = SqpSettings(
+            float(settings.primal_tolerance), float(settings.stationarity_tolerance), int(settings.max_iterations),
+            float(settings.armijo), float(settings.backtracking), float(settings.min_step),
+            float(settings.descent_fraction), float(settings.penalty_margin), int(settings.anderson_depth))
+        solver = self.qp_solver
+        self._qp_settings = QpSettings(solver.constants, solver.tolerance, solver.max_iterations, solver.warm_start,
+                                       tuple(solver.warm_start_settings))
+        self._scratch = allocate_scratch(horizon, n_slots)
+        self._compact = allocate_compact(horizon, 2 * n_slots)
+        iterations, size = max(settings.max_iterations, 1), point_size(horizon, n_slots)
+        self._record = SqpRecord(np.zeros(iterations, dtype=np.uint64), np.zeros(iterations, dtype=np.int64),
+                                 np.zeros(iterations, dtype=np.int64), np.zeros(iterations), np.zeros(iterations),
+                                 np.zeros((settings.anderson_depth + 1, size)),
+                                 np.zeros((settings.anderson_depth + 1, size)))
+        cycles_to_us(np.zeros(0))  # calibrates the cycle counter once, before the first timed solve
+
+    def _problem(self, measured_state, others, initial_states, initial_inputs) -> tuple:
+        """The arrays as the kernels read them, shapes checked (the kernels do not check bounds)."""
+        horizon = self.config.horizon
+        measured_state = np.ascontiguousarray(measured_state, dtype=np.float64)
+        others = np.ascontiguousarray(others, dtype=np.float64)
+        initial_states = np.ascontiguousarray(initial_states, dtype=np.float64)
+        initial_inputs = np.ascontiguousarray(initial_inputs, dtype=np.float64)
+        if others.ndim != 3 or others.shape[0] != horizon + 1 or others.shape[2] != 4:
+            raise ValueError(f"predicted_others must be (N + 1, V_obs, 4) = ({horizon + 1}, V_obs, 4), "
+                             f"not {others.shape}")
+        if others.shape[1] > self.config.max_vehicles:
+            raise ValueError(f"{others.shape[1]} vehicles exceed max_vehicles={self.config.max_vehicles}")
+        for name, array, shape in (("measured_state", measured_state, (4,)),
+                                   ("initial_states", initial_states, (horizon + 1, 4)),
+                                   ("initial_inputs", initial_inputs, (horizon, 2))):
+            if array.shape != shape:
+                raise ValueError(f"{name} must be {shape}, not {array.shape}")
+        return measured_state, others, initial_states, initial_inputs
+
+    def _frames(self, others: np.ndarray) -> np.ndarray:
+        frames = np.empty(others.shape)
+        vehicle_frames(others, others.shape[1], frames)
+        return frames
+
+    def _point(self, w: np.ndarray, n_obs: int) -> _Point:
+        return _Point(*point_parts(w, self.config.horizon, n_obs))
 
     # ------------------------------------------------------------------ NLP functions
-    def objective(self, point: _Point, tracking_reference: np.ndarray, last_input: np.ndarray, n_obs: int) -> float:
-        """F(w) of the module doc (slots >= 2 V_obs are empty and zero)."""
-        weights = self.config.weights
-        error = point.states[1:] - tracking_reference[1:]
-        rates = np.diff(np.vstack([last_input[None, :], point.inputs]), axis=0)
-        slacks, sigmas = point.slacks, point.sigmas
-        return float(np.sum(self._q * error**2) + np.sum(self._r * point.inputs**2) + np.sum(self._s * rates**2)
-                     + weights.collision_slack_linear * slacks.sum()
-                     + weights.collision_slack_quadratic * np.sum(slacks**2)
-                     + weights.safety_slack_linear * sigmas.sum()
-                     + weights.safety_slack_quadratic * np.sum(sigmas**2))
-
-    def infeasibility(self, point: _Point, measured_state: np.ndarray, others: np.ndarray,
-                      n_obs: int) -> tuple[float, float]:
-        """(theta_1, theta_inf): l1 and max norms of the dynamics defects and constraint violations."""
-        next_states = self.model.linearize(point.states, point.inputs)[0]
-        parts = [np.abs(point.states[1:] - next_states).ravel(), np.abs(point.states[0] - measured_state),
-                 np.maximum(self._state_lower - point.states[1:], 0.0).ravel(),
-                 np.maximum(point.states[1:] - self._state_upper, 0.0).ravel(),
-                 np.maximum(self._input_lower - point.inputs, 0.0).ravel(),
-                 np.maximum(point.inputs - self._input_upper, 0.0).ravel()]
-        if n_obs:
-            collision, safety = self._norms(point.states, others, n_obs)
-            parts.append(np.maximum(1.0 - collision - point.slacks[None, :n_obs], 0.0).ravel())
-            parts.append(np.maximum(1.0 - safety - point.sigmas - point.slacks[None, n_obs:], 0.0).ravel())
-            parts.append(np.maximum(-point.slacks, 0.0))
-            parts.append(np.maximum(-point.sigmas, 0.0).ravel())
-        violations = np.concatenate(parts)
-        return float(violations.sum()), float(violations.max(initial=0.0))
-
-    def _norms(self, states: np.ndarray, others: np.ndarray, n_obs: int) -> tuple[np.ndarray, np.ndarray]:
-        horizon = self.config.horizon
-        collision = np.empty((horizon, n_obs))
-        safety = np.empty((horizon, n_obs))
-        min_ellipse_norms(states, others, n_obs, self.circle_offsets, self.collision_semi_axes, collision)
-        min_ellipse_norms(states, others, n_obs, self.circle_offsets, self.safety_semi_axes, safety)
-        return collision, safety
-
     def initial_point(self, measured_state: np.ndarray, others: np.ndarray, initial_states: np.ndarray,
                       initial_inputs: np.ndarray) -> _Point:
         """The guess clipped into the boxes, x_0 = x_hat, the smallest feasible slacks (module doc)."""
-        horizon = self.config.horizon
+        measured_state, others, initial_states, initial_inputs = self._problem(measured_state, others,
+                                                                               initial_states, initial_inputs)
         n_obs = others.shape[1]
-        states = np.clip(np.array(initial_states, dtype=np.float64), self._state_lower, self._state_upper)
-        states[0] = measured_state
-        inputs = np.clip(np.array(initial_inputs, dtype=np.float64), self._input_lower, self._input_upper)
-        slacks = np.zeros(2 * n_obs)
-        sigmas = np.zeros((horizon, n_obs))
-        if n_obs:
-            collision, safety = self._norms(states, others, n_obs)
-            slacks[:n_obs] = np.maximum(1.0 - collision, 0.0).max(axis=0)
-            sigmas[:] = np.maximum(1.0 - safety, 0.0)
-        return _Point(states, inputs, slacks, sigmas)
+        w = np.empty(point_size(self.config.horizon, n_obs))
+        initial_point(measured_state, self._frames(others), n_obs, initial_states, initial_inputs, self.nlp,
+                      self._scratch, w)
+        return self._point(w, n_obs)
+
+    def evaluate(self, point: _Point, measured_state: np.ndarray, last_input: np.ndarray, others: np.ndarray,
+                 tracking_reference: np.ndarray) -> tuple[float, float, float]:
+        """(F, theta_1, theta_inf) at ``point`` (module doc), as the SQP evaluates them."""
+        horizon, n_obs = self.config.horizon, others.shape[1]
+        w = np.concatenate([np.ravel(point.states), np.ravel(point.inputs), np.ravel(point.slacks),
+                            np.ravel(point.sigmas)]).astype(np.float64)
+        if w.size != point_size(horizon, n_obs):
+            raise ValueError(f"the point has {w.size} values, not {point_size(horizon, n_obs)}")
+        frames = self._frames(np.ascontiguousarray(others, dtype=np.float64))
+        value = objective(w, horizon, n_obs, np.ascontiguousarray(tracking_reference, dtype=np.float64),
+                          np.ascontiguousarray(last_input, dtype=np.float64), self.nlp, self._scratch.terms)
+        theta_1, theta_inf = infeasibility(w, horizon, n_obs, np.ascontiguousarray(measured_state, dtype=np.float64),
+                                           frames, self.nlp, self._scratch)
+        return float(value), float(theta_1), float(theta_inf)
 
     # ------------------------------------------------------------------ SQP
-    def _screen(self, point: _Point, others: np.ndarray, n_obs: int) -> tuple[np.ndarray, np.ndarray]:
-        """Vehicles whose collision / safety rows enter the QP at ``point`` (module doc, screening)."""
-        if not n_obs:
-            empty = np.zeros(0, dtype=np.int64)
-            return empty, empty
-        collision, safety = self._norms(point.states, others, n_obs)
-        threshold = self.settings.screening_norm
-        keep_collision = (collision.min(axis=0) < threshold) | (point.slacks[:n_obs] > 0.0)
-        keep_safety = ((safety.min(axis=0) < threshold) | (point.slacks[n_obs:] > 0.0)
-                       | (point.sigmas > 0.0).any(axis=0))
-        return np.flatnonzero(keep_collision), np.flatnonzero(keep_safety)
-
-    def _solve_subproblem(self, point: _Point, measured_state, last_input, tracking_reference, others,
-                          n_obs, result: NmpcResult) -> _Point | None:
-        """The QP linearized about ``point`` (module doc, step 1); its solution, or None if it failed."""
-        qp = self.qp
-        collision_rows, safety_rows = self._screen(point, others, n_obs)
-        n_collision, n_rows = collision_rows.size, collision_rows.size + safety_rows.size
-        row_others = np.ascontiguousarray(others[:, np.concatenate([collision_rows, safety_rows])])
-        qp.update(measured_state, point.states, point.inputs, tracking_reference, last_input, row_others)
-        if n_rows:
-            norms = np.empty((self.config.horizon, n_rows))
-            linearize_ellipse_rows(point.states, row_others, n_collision, self.circle_offsets,
-                                   self.collision_semi_axes, qp.collision_coefficients, qp.collision_row_lower, norms)
-            linearize_ellipse_rows(point.states, row_others[:, n_collision:], safety_rows.size, self.circle_offsets,
-                                   self.safety_semi_axes, qp.collision_coefficients[:, n_collision:],
-                                   qp.collision_row_lower[:, n_collision:], norms)
-            qp.safety_slack_upper[:, :n_collision] = 0.0
-            qp.safety_slack_upper[:, n_collision:n_rows] = SAFETY_SLACK_UPPER
-        start = time.perf_counter()
-        solution = self.qp_solver.solve(qp)
-        result.qp_times_s.append(time.perf_counter() - start)
-        result.qp_iterations.append(int(solution.iterations or 0))
-        result.qp_rows.append(n_rows)
-        if not solution.solved:
-            return None
-        states, inputs, qp_slacks, qp_sigmas = qp.split_solution(solution.z)
-        slacks, sigmas = point.slacks.copy(), point.sigmas.copy()
-        slacks[collision_rows] = qp_slacks[:n_collision]
-        slacks[n_obs + safety_rows] = qp_slacks[n_collision:n_rows]
-        sigmas[:, safety_rows] = qp_sigmas[:, n_collision:n_rows]
-        return _Point(states, inputs, slacks, sigmas)
-
-    def _anderson(self, history, point: _Point, measured_state: np.ndarray) -> _Point | None:
-        """w_AA = G_i - dG gamma, gamma = argmin ||f_i - dF gamma||_2 over the last pairs (w, G(w)), f = G(w) - w;
-        projected into the boxes (module doc, step 4). None with fewer than two pairs or depth 0."""
-        if len(history) < 2 or self.settings.anderson_depth == 0:
-            return None
-        iterates = np.stack([w for w, _ in history], axis=1)
-        images = np.stack([g for _, g in history], axis=1)
-        residuals = images - iterates
-        residual_differences = np.diff(residuals, axis=1)
-        gamma = np.linalg.lstsq(residual_differences, residuals[:, -1], rcond=None)[0]
-        flat = images[:, -1] - np.diff(images, axis=1) @ gamma
-        accelerated = point.unflat(flat)
-        accelerated.states[0] = measured_state
-        accelerated.states[1:] = np.clip(accelerated.states[1:], self._state_lower, self._state_upper)
-        np.clip(accelerated.inputs, self._input_lower, self._input_upper, out=accelerated.inputs)
-        np.maximum(accelerated.slacks, 0.0, out=accelerated.slacks)
-        np.maximum(accelerated.sigmas, 0.0, out=accelerated.sigmas)
-        return accelerated
-
     def solve(self, measured_state: np.ndarray, last_input: np.ndarray, predicted_others: np.ndarray,
               tracking_reference: np.ndarray, initial_states: np.ndarray, initial_inputs: np.ndarray) -> NmpcResult:
         """Solve the NLP from the initial guess (module doc).
@@ -365,92 +483,37 @@ class NmpcSolver:
             predicted_others: (N + 1, V_obs, 4) other vehicles, V_obs <= ``config.max_vehicles``.
             tracking_reference: (N + 1, 4) x^ref (row 0 unused).
             initial_states, initial_inputs: the guess (N + 1, 4), (N, 2).
+
+        ``qp`` keeps the last subproblem (its stage-wise arrays; ``qp_solver.solve(qp)`` solves it again).
         """
         start = time.perf_counter()
-        settings = self.settings
-        measured_state = np.asarray(measured_state, dtype=np.float64)
-        last_input = np.asarray(last_input, dtype=np.float64)
-        tracking_reference = np.asarray(tracking_reference, dtype=np.float64)
-        others = np.ascontiguousarray(predicted_others, dtype=np.float64)
+        measured_state, others, initial_states, initial_inputs = self._problem(
+            measured_state, predicted_others, initial_states, initial_inputs)
         n_obs = others.shape[1]
-        if n_obs > self.config.max_vehicles:
-            raise ValueError(f"{n_obs} vehicles exceed max_vehicles={self.config.max_vehicles}")
-        point = self.initial_point(measured_state, others, initial_states, initial_inputs)
-        objective = self.objective(point, tracking_reference, last_input, n_obs)
-        theta_1, theta_inf = self.infeasibility(point, measured_state, others, n_obs)
-        penalty = 0.0
-        stationarity = np.inf
-        result = NmpcResult(point.states, point.inputs, point.slacks, point.sigmas, objective, STATUS_MAX_ITERATIONS,
-                            0, theta_inf, stationarity, objective, penalty)
-        status = STATUS_MAX_ITERATIONS
-        history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=settings.anderson_depth + 1)
-        for _ in range(settings.max_iterations):
-            candidate = self._solve_subproblem(point, measured_state, last_input, tracking_reference, others,
-                                               n_obs, result)
-            result.iterations += 1
-            if candidate is None:
-                status = STATUS_QP_FAILED
-                break
-            step = candidate.minus(point)
-            stationarity = step.max_abs()
-            result.step_norms.append(stationarity)
-            if theta_inf <= settings.primal_tolerance and stationarity <= settings.stationarity_tolerance:
-                status = STATUS_CONVERGED
-                break
-            # penalty update (module doc, step 3); F quadratic: exact first/second-order terms
-            objective_full = self.objective(candidate, tracking_reference, last_input, n_obs)
-            objective_back = self.objective(point.plus(step, -1.0), tracking_reference, last_input, n_obs)
-            gradient_step = 0.5 * (objective_full - objective_back)
-            model_decrease = objective_full - objective
-            if theta_1 > 0.0:
-                required = model_decrease / ((1.0 - settings.descent_fraction) * theta_1)
-                if penalty < required:
-                    penalty = required + settings.penalty_margin
-            derivative = gradient_step - penalty * theta_1
-            merit = objective + penalty * theta_1
-            alpha = 1.0
-            accepted = False
-            while alpha >= settings.min_step:
-                trial = candidate if alpha == 1.0 else point.plus(step, alpha)
-                trial_objective = objective_full if alpha == 1.0 else self.objective(
-                    trial, tracking_reference, last_input, n_obs)
-                trial_theta_1, trial_theta_inf = self.infeasibility(trial, measured_state, others, n_obs)
-                trial_merit = trial_objective + penalty * trial_theta_1
-                if trial_merit <= merit + settings.armijo * alpha * derivative + 1e-12 * abs(merit):
-                    accepted = True
-                    break
-                alpha *= settings.backtracking
-            result.step_lengths.append(alpha if accepted else 0.0)
-            if not accepted:
-                status = STATUS_LINE_SEARCH_FAILED
-                break
-            if (alpha == 1.0 and trial_theta_inf <= settings.primal_tolerance
-                    and stationarity <= settings.stationarity_tolerance):
-                point, objective, theta_1, theta_inf = trial, trial_objective, trial_theta_1, trial_theta_inf
-                status = STATUS_CONVERGED
-                break
-            # Anderson acceleration of the full-step iteration (module doc, step 4)
-            if alpha < 1.0:
-                history.clear()
-            else:
-                history.append((point.flat(), candidate.flat()))
-                accelerated = self._anderson(history, point, measured_state)
-                if accelerated is not None:
-                    aa_objective = self.objective(accelerated, tracking_reference, last_input, n_obs)
-                    aa_theta_1, aa_theta_inf = self.infeasibility(accelerated, measured_state, others, n_obs)
-                    if aa_objective + penalty * aa_theta_1 < trial_merit:
-                        trial, trial_objective, trial_theta_1, trial_theta_inf = (
-                            accelerated, aa_objective, aa_theta_1, aa_theta_inf)
-                        result.accelerated_steps += 1
-            point, objective, theta_1, theta_inf = trial, trial_objective, trial_theta_1, trial_theta_inf
-        result.states, result.inputs = point.states, point.inputs
-        result.collision_slacks = point.slacks[:n_obs].copy()
-        result.safety_slacks = point.sigmas.copy()
-        result.objective, result.status, result.primal_infeasibility = objective, status, theta_inf
-        result.stationarity, result.penalty = stationarity, penalty
-        result.merit = objective + penalty * theta_1
-        result.solve_time_s = time.perf_counter() - start
-        return result
+        qp = self.qp
+        qp.measured_state[:] = measured_state
+        qp.last_input[:] = last_input
+        qp.tracking_reference[:] = tracking_reference
+        w = np.empty(point_size(self.config.horizon, n_obs))
+        record = self._record
+        (status, iterations, line_searches, value, theta_1, theta_inf, stationarity, penalty,
+         accelerated_steps) = _sqp(
+            others, n_obs, initial_states, initial_inputs, self.nlp, self._sqp_settings, self._subproblem,
+            self._qp_settings, self.qp_solver.workspace, self.qp_solver.memory, self._compact, self._scratch, record, w)
+        if iterations:
+            qp.n_observed = int(record.qp_rows[iterations - 1])
+            qp._sparse_values_stale = True  # the stage-wise arrays changed (as after ``LtvMpcQp.update``)
+        point = self._point(w, n_obs)
+        steps = iterations - (status == _QP_FAILED)
+        return NmpcResult(
+            point.states, point.inputs, point.slacks[:n_obs].copy(), point.sigmas.copy(), float(value),
+            STATUSES[status], int(iterations), float(theta_inf), float(stationarity),
+            float(value + penalty * theta_1), float(penalty),
+            qp_times_s=(cycles_to_us(record.qp_cycles[:iterations]) * 1e-6).tolist(),
+            qp_iterations=record.qp_iterations[:iterations].tolist(),
+            step_lengths=record.step_lengths[:line_searches].tolist(),
+            step_norms=record.step_norms[:steps].tolist(), qp_rows=record.qp_rows[:iterations].tolist(),
+            accelerated_steps=int(accelerated_steps), solve_time_s=time.perf_counter() - start)
 
 
 __all__ = ["NmpcResult", "NmpcSettings", "NmpcSolver", "SAFETY_SLACK_UPPER"]

@@ -54,13 +54,25 @@ def closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h, circle_offset
 
 
 @numba.njit(cache=True)
-def linearize_ellipse_rows(states, predicted_others, n_others, circle_offsets, semi_axes,
+def vehicle_frames(predicted_others, n_others, frames):
+    """frames[k, j] = (x, y, cos phi, sin phi) of vehicle j < n_others at stage k: its ellipses' centre and
+    axes, computed once for the kernels below (the NMPC evaluates them at every iterate, the vehicles fixed)."""
+    for k in range(predicted_others.shape[0]):
+        for j in range(n_others):
+            frames[k, j, 0] = predicted_others[k, j, 0]
+            frames[k, j, 1] = predicted_others[k, j, 1]
+            frames[k, j, 2] = np.cos(predicted_others[k, j, 2])
+            frames[k, j, 3] = np.sin(predicted_others[k, j, 2])
+
+
+@numba.njit(cache=True)
+def linearize_ellipse_rows(states, frames, n_others, circle_offsets, semi_axes,
                            coefficients, row_lower, norms):
     """One linearized row per stage k = 1..N and vehicle j < n_others (module doc).
 
     Args:
         states: (N + 1, 4) linearization states x^r.
-        predicted_others: (N + 1, >= n_others, 4) other vehicles (x, y, heading, v).
+        frames: (N + 1, >= n_others, 4) other vehicles' (x, y, cos phi, sin phi) (``vehicle_frames``).
         n_others: number of vehicles to fill.
         circle_offsets: (C,) circle offsets d_c [m].
         semi_axes: (2,) ellipse semi-axes (a, b) [m].
@@ -78,10 +90,7 @@ def linearize_ellipse_rows(states, predicted_others, n_others, circle_offsets, s
         cos_psi = np.cos(psi)
         sin_psi = np.sin(psi)
         for j in range(n_others):
-            ox = predicted_others[k + 1, j, 0]
-            oy = predicted_others[k + 1, j, 1]
-            cos_h = np.cos(predicted_others[k + 1, j, 2])
-            sin_h = np.sin(predicted_others[k + 1, j, 2])
+            ox, oy, cos_h, sin_h = frames[k + 1, j, 0], frames[k + 1, j, 1], frames[k + 1, j, 2], frames[k + 1, j, 3]
             best_norm, best_d, best_l, best_t = closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h,
                                                                circle_offsets, a, b)
             if best_norm < DEGENERATE_NORM:
@@ -100,8 +109,9 @@ def linearize_ellipse_rows(states, predicted_others, n_others, circle_offsets, s
 
 
 @numba.njit(cache=True)
-def min_ellipse_norms(states, predicted_others, n_others, circle_offsets, semi_axes, norms):
-    """norms[k, j] = min_c g(p_c(x_{k+1})) for k < N, j < n_others (exact, no linearization)."""
+def min_ellipse_norms(states, frames, n_others, circle_offsets, semi_axes, norms):
+    """norms[k, j] = min_c g(p_c(x_{k+1})) for k < N, j < n_others (exact, no linearization); ``frames`` as
+    ``linearize_ellipse_rows``'."""
     horizon = states.shape[0] - 1
     a = semi_axes[0]
     b = semi_axes[1]
@@ -111,8 +121,5 @@ def min_ellipse_norms(states, predicted_others, n_others, circle_offsets, semi_a
         cos_psi = np.cos(states[k + 1, 2])
         sin_psi = np.sin(states[k + 1, 2])
         for j in range(n_others):
-            ox = predicted_others[k + 1, j, 0]
-            oy = predicted_others[k + 1, j, 1]
-            cos_h = np.cos(predicted_others[k + 1, j, 2])
-            sin_h = np.sin(predicted_others[k + 1, j, 2])
+            ox, oy, cos_h, sin_h = frames[k + 1, j, 0], frames[k + 1, j, 1], frames[k + 1, j, 2], frames[k + 1, j, 3]
             norms[k, j] = closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h, circle_offsets, a, b)[0]

@@ -12,10 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from srmpc.mpc.nmpc import NmpcSettings, NmpcSolver
-from srmpc.mpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms
+from srmpc.mpc.collision import collision_norms
+from srmpc.mpc.interior_point_warm_start import allocate_memory
+from srmpc.mpc.nmpc import NmpcSettings, NmpcSolver, _Point
+from srmpc.mpc.nmpc_kernels import _next_state, allocate_compact, pairwise_sum, solve_subproblem
+from srmpc.mpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms, vehicle_frames
 from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
 from srmpc.mpc.ocp import OcpConfig
+from srmpc.mpc.riccati_interior_point import allocate_workspace
+from srmpc.mpc.solvers import RiccatiInteriorPointSolver
 
 STATES = Path(__file__).parent.parent / "data" / "nmpc_states.npz"
 
@@ -56,16 +61,18 @@ def test_ellipse_rows_are_the_gradient_of_the_exact_norm():
                               rng.uniform(-0.2, 0.2, horizon + 1), rng.uniform(15, 25, horizon + 1)])
     others = np.stack([rng.uniform(0, 30, (horizon + 1, 2)), rng.uniform(0, 8, (horizon + 1, 2)),
                        rng.uniform(-0.1, 0.1, (horizon + 1, 2)), rng.uniform(15, 25, (horizon + 1, 2))], axis=-1)
+    frames = np.empty(others.shape)
+    vehicle_frames(others, 2, frames)
     coefficients, lower, norms = np.empty((horizon, 2, 3)), np.empty((horizon, 2)), np.empty((horizon, 2))
-    linearize_ellipse_rows(states, others, 2, offsets, axes, coefficients, lower, norms)
+    linearize_ellipse_rows(states, frames, 2, offsets, axes, coefficients, lower, norms)
     step = 1e-6
     for coordinate in range(3):
         plus, minus = states.copy(), states.copy()
         plus[:, coordinate] += step
         minus[:, coordinate] -= step
         norm_plus, norm_minus = np.empty((horizon, 2)), np.empty((horizon, 2))
-        min_ellipse_norms(plus, others, 2, offsets, axes, norm_plus)
-        min_ellipse_norms(minus, others, 2, offsets, axes, norm_minus)
+        min_ellipse_norms(plus, frames, 2, offsets, axes, norm_plus)
+        min_ellipse_norms(minus, frames, 2, offsets, axes, norm_minus)
         # central differences of a smooth function: error O(step^2) ~ 1e-10 plus round-off ~1e-10
         np.testing.assert_allclose(coefficients[..., coordinate], (norm_plus - norm_minus) / (2 * step), atol=1e-7)
     np.testing.assert_allclose(lower, 1.0 - norms + np.einsum("kjc,kc->kj", coefficients, states[1:, :3]),
@@ -132,3 +139,137 @@ def test_anderson_acceleration_reaches_the_plain_sqp_plan(states, solver):
         # both stop within ||p||_inf <= 1e-4 of the same KKT point; measured: states 2.0e-4, first input 7.1e-5
         np.testing.assert_allclose(accelerated.states, reference.states, atol=1e-3)
         np.testing.assert_allclose(accelerated.inputs[0], reference.inputs[0], atol=1e-4)
+
+
+def numpy_objective(solver, point, tracking_reference, last_input) -> float:
+    """F(w) written with numpy arrays (the module doc's formula, as the numpy SQP of earlier revisions)."""
+    weights = solver.config.weights
+    q, r, s = np.asarray(weights.state), np.asarray(weights.input), np.asarray(weights.input_rate)
+    error = point.states[1:] - tracking_reference[1:]
+    rates = np.diff(np.vstack([last_input[None, :], point.inputs]), axis=0)
+    slacks, sigmas = point.slacks, point.sigmas
+    return float(np.sum(q * error**2) + np.sum(r * point.inputs**2) + np.sum(s * rates**2)
+                 + weights.collision_slack_linear * slacks.sum() + weights.collision_slack_quadratic * np.sum(slacks**2)
+                 + weights.safety_slack_linear * sigmas.sum() + weights.safety_slack_quadratic * np.sum(sigmas**2))
+
+
+def numpy_infeasibility(solver, point, measured_state, others) -> tuple[float, float]:
+    """(theta_1, theta_inf) with numpy: defects through ``KinematicBicycle.linearize``, the ellipse norms through
+    ``collision.collision_norms`` (the norms of every circle, then the minimum)."""
+    config, geometry, n_obs = solver.config, solver.config.geometry, others.shape[1]
+    lower = np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_m_s[0]])
+    upper = np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_m_s[1]])
+    input_lower = np.array([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]])
+    input_upper = np.array([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]])
+    next_states = solver.model.linearize(point.states, point.inputs)[0]
+    parts = [np.abs(point.states[1:] - next_states).ravel(), np.abs(point.states[0] - measured_state),
+             np.maximum(lower - point.states[1:], 0.0).ravel(), np.maximum(point.states[1:] - upper, 0.0).ravel(),
+             np.maximum(input_lower - point.inputs, 0.0).ravel(), np.maximum(point.inputs - input_upper, 0.0).ravel()]
+    if n_obs:
+        offsets = geometry.circle_offsets_m
+        collision = collision_norms(point.states[1:], others[1:], offsets, geometry.collision_semi_axes_m).min(axis=2)
+        safety = collision_norms(point.states[1:], others[1:], offsets, geometry.safety_semi_axes_m).min(axis=2)
+        parts.append(np.maximum(1.0 - collision - point.slacks[None, :n_obs], 0.0).ravel())
+        parts.append(np.maximum(1.0 - safety - point.sigmas - point.slacks[None, n_obs:], 0.0).ravel())
+        parts.append(np.maximum(-point.slacks, 0.0))
+        parts.append(np.maximum(-point.sigmas, 0.0).ravel())
+    violations = np.concatenate(parts)
+    return float(violations.sum()), float(violations.max(initial=0.0))
+
+
+def random_point(rng, states, i, guess):
+    """A point near recorded guess i, with boxes, dynamics and slack signs violated."""
+    n, horizon = int(states["n_observed"][i]), states[f"{guess}_inputs"].shape[1]
+    return _Point(states[f"{guess}_states"][i] + rng.normal(0.0, [1.0, 0.5, 0.05, 1.0], (horizon + 1, 4)),
+                  rng.uniform([-0.2, -8.0], [0.2, 8.0], (horizon, 2)), rng.uniform(-0.2, 1.0, 2 * n),
+                  rng.uniform(-0.2, 1.0, (horizon, n)))
+
+
+@pytest.mark.parametrize("guess", ["rollout", "cv"])
+def test_compiled_nlp_functions_equal_the_numpy_formulas(states, solver, guess):
+    """F, theta_1 and theta_inf of the compiled kernels (``NmpcSolver.evaluate``, as the SQP evaluates them) equal
+    the numpy formulas on random points, and the initial point equals its numpy definition."""
+    rng = np.random.default_rng(7)
+    config = solver.config
+    for i in range(states["ego"].shape[0]):
+        ego, last_input, others, tracking = planner_inputs(states, i)
+        for _ in range(20):
+            point = random_point(rng, states, i, guess)
+            value, theta_1, theta_inf = solver.evaluate(point, ego, last_input, others, tracking)
+            # measured: equal bit for bit (numpy's pairwise summation order, the same floating-point operations)
+            assert value == pytest.approx(numpy_objective(solver, point, tracking, last_input), rel=1e-13)
+            reference_1, reference_inf = numpy_infeasibility(solver, point, ego, others)
+            assert theta_1 == pytest.approx(reference_1, rel=1e-13, abs=1e-15)
+            assert theta_inf == pytest.approx(reference_inf, rel=1e-13, abs=1e-15)
+        guess_states, guess_inputs = random_point(rng, states, i, guess).states, states[f"{guess}_inputs"][i]
+        start = solver.initial_point(ego, others, guess_states, guess_inputs)
+        lower = [-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_m_s[0]]
+        upper = [np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_m_s[1]]
+        np.testing.assert_array_equal(start.states[1:], np.clip(guess_states[1:], lower, upper))
+        np.testing.assert_array_equal(start.states[0], ego)
+        np.testing.assert_array_equal(start.inputs, np.clip(guess_inputs, *np.transpose(
+            [config.steering_bounds_rad, config.acceleration_bounds_m_s2])))
+        n, geometry = others.shape[1], config.geometry
+        if n:
+            norms = [collision_norms(start.states[1:], others[1:], geometry.circle_offsets_m, axes).min(axis=2)
+                     for axes in (geometry.collision_semi_axes_m, geometry.safety_semi_axes_m)]
+            np.testing.assert_allclose(start.slacks[:n], np.maximum(1.0 - norms[0], 0.0).max(axis=0), atol=1e-15)
+            np.testing.assert_allclose(start.sigmas, np.maximum(1.0 - norms[1], 0.0), atol=1e-15)
+        np.testing.assert_array_equal(start.slacks[n:], 0.0)
+
+
+def test_pairwise_sum_is_numpys_sum():
+    """The kernels' sums are numpy's ``np.sum`` bit for bit (its pairwise order), up to lengths well past the
+    longest sum of the default OCP (~900 terms) and at any offset."""
+    rng = np.random.default_rng(11)
+    for length in [*range(0, 300), *rng.integers(300, 5000, 50)]:
+        offset = int(rng.integers(0, 4))
+        values = rng.normal(0.0, 1.0, offset + length) * 10.0 ** rng.uniform(-6, 6, offset + length)
+        assert pairwise_sum(values, offset, length) == np.sum(values[offset:]), length
+
+
+def test_next_state_is_the_model_step_bit_for_bit(solver):
+    """The kernels' f(x, u) (trigonometry of the input hoisted out of the sub-steps) is ``KinematicBicycle.step``
+    bit for bit, in both speed-clipping branches too."""
+    rng = np.random.default_rng(5)
+    model = solver.model
+    bicycle = model.parameters
+    for _ in range(2000):
+        state = np.array([rng.uniform(0, 500), rng.uniform(-2, 14), rng.uniform(-0.5, 0.5),
+                          rng.uniform(1.2 * bicycle.min_speed_m_s, 1.2 * bicycle.max_speed_m_s)])
+        control = rng.uniform([-0.3, -8.0], [0.3, 8.0])
+        following = np.empty(4)
+        _next_state(state, control, tuple(model._args), following)
+        np.testing.assert_array_equal(following, model.step(state, control))
+
+
+@pytest.mark.parametrize("warm", [True, False])
+def test_compact_subproblem_is_the_full_qp_bit_for_bit(states, warm):
+    """The SQP solves each QP on max(rows, 1) slots (``solve_subproblem``); the same QP on all 2V slots through
+    ``RiccatiInteriorPointSolver.solve`` gives the same iterations, solution and warm-start memory, bit for bit."""
+    solver = NmpcSolver(OcpConfig())
+    horizon = solver.config.horizon
+    for i in range(states["ego"].shape[0]):
+        ego, last_input, others, tracking = planner_inputs(states, i)
+        solver.solve(ego, last_input, others, tracking, states["cv_states"][i], states["cv_inputs"][i])
+        qp, rows = solver.qp, solver.qp.n_observed  # the last subproblem; the memory holds its solution
+        full = RiccatiInteriorPointSolver(tolerance=solver.settings.qp_tolerance)
+        full.bind(qp)
+        compact_memory = allocate_memory(horizon, 2 * solver.config.max_vehicles, solver.qp_solver.memory.z.size)
+        for target in (full.memory, compact_memory):
+            for mine, theirs in zip(target, solver.qp_solver.memory, strict=True):
+                mine[...] = theirs
+            target.valid[0] = warm
+        expected = full.solve(qp)
+        status, iterations, solution = solve_subproblem(
+            solver._subproblem, rows, qp.measured_state, solver._qp_settings,
+            allocate_workspace(horizon, 2 * solver.config.max_vehicles), compact_memory,
+            allocate_compact(horizon, 2 * solver.config.max_vehicles))
+        assert expected.solved and status == 0 and iterations == expected.iterations, i
+        full_states, full_inputs, full_slacks, full_sigmas = qp.split_solution(expected.z)
+        np.testing.assert_array_equal(solution.states, full_states)
+        np.testing.assert_array_equal(solution.inputs, full_inputs)
+        np.testing.assert_array_equal(solution.slacks[:rows], full_slacks[:rows])
+        np.testing.assert_array_equal(solution.sigmas[:, :rows], full_sigmas[:, :rows])
+        for mine, theirs in zip(compact_memory, full.memory, strict=True):
+            np.testing.assert_array_equal(mine, theirs)
