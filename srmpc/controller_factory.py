@@ -39,6 +39,8 @@ from srmpc.sim.state import SceneState
 
 NMPC_FROM_POLICY = {ControllerName.nmpc_rollout: NmpcInitialGuess.policy_rollout,
                     ControllerName.nmpc_best_of_two: NmpcInitialGuess.best_of_two}
+NMPC_WITHOUT_POLICY = {ControllerName.nmpc: NmpcInitialGuess.shifted_previous,
+                       ControllerName.nmpc_constant_velocity: NmpcInitialGuess.constant_velocity}
 """The NMPC controllers that roll out ``srmpc.policy``, and their initial guess."""
 REPOSITORY = Path(__file__).resolve().parents[1]
 """The repository root: default policy files are its results/training/<agent>/policy.pt, from any directory."""
@@ -129,12 +131,13 @@ def build_controller(config: Config, env: gymnasium.Env) -> Controller:
                                                    control_period_s=ocp.control_period_s)
         return SrmpcController(policy, LtvMpcPlanner(ocp, config.planner.solver), scene_source(env), tracking,
                                srmpc)  # SrmpcConfig is the SrmpcSettings schema plus the policy's name and file
-    if name in (ControllerName.nmpc, *NMPC_FROM_POLICY):
+    if name in (*NMPC_WITHOUT_POLICY, *NMPC_FROM_POLICY):
         ocp, y_ref = planner_ocp(config)
         tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
                                                    control_period_s=ocp.control_period_s)
-        if name is ControllerName.nmpc:
-            return NmpcController(NmpcSolver(ocp), LtvMpcPlanner(ocp, config.planner.solver), tracking)
+        if name in NMPC_WITHOUT_POLICY:
+            return NmpcController(NmpcSolver(ocp), LtvMpcPlanner(ocp, config.planner.solver), tracking,
+                                  NMPC_WITHOUT_POLICY[name])
         policy = load_policy(config, config.srmpc.policy.value, config.srmpc.policy_path, "srmpc.policy_path")
         return NmpcController(NmpcSolver(ocp), LtvMpcPlanner(ocp, config.planner.solver), tracking,
                               NMPC_FROM_POLICY[name], policy, scene_source(env))

@@ -1,4 +1,4 @@
-"""The NMPC controllers (``evaluation.controller=nmpc|nmpc_rollout|nmpc_best_of_two``) in closed loop."""
+"""The NMPC controllers (``evaluation.controller=nmpc|nmpc_constant_velocity|nmpc_rollout|nmpc_best_of_two``) in closed loop."""
 
 from __future__ import annotations
 
@@ -14,14 +14,14 @@ STEPS = 12
 """Control steps per episode (2.4 s): short, the NMPC takes ~10 ms a step."""
 
 
-@pytest.mark.parametrize("controller", ["nmpc", "nmpc_rollout", "nmpc_best_of_two"])
+@pytest.mark.parametrize("controller", ["nmpc", "nmpc_constant_velocity", "nmpc_rollout", "nmpc_best_of_two"])
 def test_nmpc_controller_drives_short_dense_episodes(controller):
     config = to_objects(compose_config(["+experiment=dense_traffic", "tracking.enabled=false",
                                         f"evaluation.controller={controller}"]))
     env = TwinScenarioEnv(config.scenario)
     nmpc = build_controller(config, env)
     assert isinstance(nmpc, NmpcController)
-    assert (policy_file(config) is None) == (controller == "nmpc")
+    assert (policy_file(config) is None) == (controller in ("nmpc", "nmpc_constant_velocity"))
     low = np.array([-config.scenario.steering_max_rad, config.scenario.acceleration_min_mps2])
     high = np.array([config.scenario.steering_max_rad, config.scenario.acceleration_max_mps2])
     for seed in (0, 1):
@@ -40,7 +40,9 @@ def test_nmpc_controller_drives_short_dense_episodes(controller):
         solved_by_guess = (outcomes["solved_from_policy"] + outcomes["solved_from_shifted"]
                            + outcomes["solved_from_lane_following"])
         assert solved_by_guess == outcomes["solved"] >= steps - 2  # the SQP converges on nearly every step
-        if nmpc.initial_guess is NmpcInitialGuess.shifted_previous:
-            assert outcomes["solved_from_policy"] == 0
+        if nmpc.initial_guess is NmpcInitialGuess.constant_velocity:  # never the last plan, never the policy
+            assert outcomes["solved_from_lane_following"] == outcomes["solved"]
+        elif nmpc.initial_guess is NmpcInitialGuess.shifted_previous:
+            assert outcomes["solved_from_policy"] == 0 and outcomes["solved_from_shifted"] > 0
         else:
             assert outcomes["solved_from_policy"] > 0

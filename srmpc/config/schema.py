@@ -55,6 +55,8 @@ class ControllerName(Enum):
     nmpc = "nmpc"
     """NMPC: the ``planner``'s OCP on the exact model solved to convergence by SQP (srmpc.controllers.nmpc),
     started from its shifted previous solution (constant velocity in the lane at first)."""
+    nmpc_constant_velocity = "nmpc_constant_velocity"
+    """NMPC started at every step from constant velocity in the closest lane (the paper's LTV-MPC start)."""
     nmpc_rollout = "nmpc_rollout"
     """NMPC started from the ``srmpc.policy``'s rollout (the paper's future work)."""
     nmpc_best_of_two = "nmpc_best_of_two"

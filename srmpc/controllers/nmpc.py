@@ -3,6 +3,8 @@
 Per step, from the measured ego state and the observed vehicles' constant-velocity predictions:
 
 1. the initial guess (``NmpcInitialGuess``):
+   - ``constant_velocity``: constant velocity in the closest lane from the measured state at every step
+     (``LtvMpcPlanner.lane_following_reference``, the paper's LTV-MPC start), no memory of the last plan;
    - ``shifted_previous``: the last applied NMPC plan's inputs advanced by the steps since, rolled out on the
      exact model from the measured state; constant velocity in the closest lane when there is none
      (LTV-MPC's reference rule, ``LtvMpcPlanner.default_reference``);
@@ -37,9 +39,14 @@ from srmpc.sim.rollout import rollout
 class NmpcInitialGuess(enum.Enum):
     """Where the SQP starts (module doc)."""
 
+    constant_velocity = "constant_velocity"
     shifted_previous = "shifted_previous"
     policy_rollout = "policy_rollout"
     best_of_two = "best_of_two"
+
+
+POLICY_GUESSES = (NmpcInitialGuess.policy_rollout, NmpcInitialGuess.best_of_two)
+"""The guesses that roll out the policy."""
 
 
 class NmpcController:
@@ -57,7 +64,7 @@ class NmpcController:
                  initial_guess: NmpcInitialGuess = NmpcInitialGuess.shifted_previous,
                  policy: MlpPolicy | Callable[[np.ndarray], np.ndarray] | None = None,
                  scene_source: SceneSource | None = None) -> None:
-        if initial_guess is not NmpcInitialGuess.shifted_previous and (policy is None or scene_source is None):
+        if initial_guess in POLICY_GUESSES and (policy is None or scene_source is None):
             raise ValueError(f"initial_guess={initial_guess.value} needs a policy and a scene source")
         self.solver, self.planner = solver, planner
         self.tracking_reference = np.asarray(tracking_reference, dtype=np.float64)
@@ -90,13 +97,15 @@ class NmpcController:
         ego = np.asarray(scene.ego, dtype=np.float64)
         predicted = self.planner.predict(scene.others[scene.slot_vehicle[scene.slot_vehicle >= 0]])
         guesses: list[tuple[np.ndarray, np.ndarray, ReferenceSource]] = []
-        if self.initial_guess is not NmpcInitialGuess.shifted_previous:
+        if self.initial_guess in POLICY_GUESSES:
             guess = self._rollout_guess()
             if guess is None:
                 self.outcomes[POLICY_FAILED] += 1
             else:
                 guesses.append((*guess, ReferenceSource.GIVEN))
-        if not guesses or self.initial_guess is NmpcInitialGuess.best_of_two:
+        if self.initial_guess is NmpcInitialGuess.constant_velocity:
+            guesses.append((*self.planner.lane_following_reference(ego), ReferenceSource.LANE_FOLLOWING))
+        elif not guesses or self.initial_guess is NmpcInitialGuess.best_of_two:
             guesses.append(self.planner.default_reference(ego))
         candidates = []
         for states, inputs, source in guesses:
