@@ -32,7 +32,17 @@ import pandas as pd
 import yaml
 from omegaconf import OmegaConf
 
-from pipelines.reporting import PAPER, by_method, ci, evaluations, method_row, settings_of, write_outputs
+from pipelines.reporting import (
+    PAPER,
+    by_method,
+    ci,
+    difference,
+    evaluations,
+    method_row,
+    settings_of,
+    sign,
+    write_outputs,
+)
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 from srmpc.config.compose import compose_config
 
@@ -86,22 +96,11 @@ def role(traffic: str, method: str, key: str) -> str:
     return "predicted" if method != "ppo_lsi" else "no planner (the table's run)"
 
 
-def sign(interval: tuple[float, float]) -> int:
-    """+1 / -1 when a 95% CI lies above / below 0, 0 when it contains 0."""
-    return 1 if interval[0] > 0 else -1 if interval[1] < 0 else 0
-
-
 def three_way(signs: list[int], want: int) -> str:
     """holds when every CI is on the claimed side, fails when any is on the other, else not shown."""
     if all(s == want for s in signs):
         return "holds"
     return "fails" if any(s == -want for s in signs) else "not shown (a CI contains 0)"
-
-
-def difference(d: dict, key: str, digits: int, negate: bool = False) -> str:
-    f = -1.0 if negate else 1.0
-    low, high = sorted((f * d[f"{key}_ci95"][0], f * d[f"{key}_ci95"][1]))
-    return f"{f * d[key]:+.{digits}f} [{low:+.{digits}f}, {high:+.{digits}f}]"
 
 
 def lower(cut: float) -> str:

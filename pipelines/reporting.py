@@ -7,6 +7,7 @@ bootstrap settings, and how a report is written.
   ``config.yaml`` (controller, SRMPC variant, planner settings, traffic, seed), never from its name;
 - :data:`PAPER`: the paper's Table "Evaluation results";
 - :func:`method_row`, :func:`row_with_intervals`, :func:`paper_row`, :func:`ci`: a method's row, read and printed;
+- :func:`difference`, :func:`sign`: a paired difference printed, and which side of 0 its CI lies on;
 - :func:`write_outputs`: each report file written atomically.
 
 Every interval uses the bootstrap of ``srmpc.confidence_intervals`` (``BOOTSTRAP_RESAMPLES``,
@@ -118,6 +119,19 @@ def by_method(*roots: Path) -> dict[tuple[str, str], Path]:
                                  "at the default planner settings")
             found[key] = directory
     return found
+
+
+def sign(interval: tuple[float, float]) -> int:
+    """+1 / -1 when a 95% CI lies above / below 0, 0 when it contains 0."""
+    return 1 if interval[0] > 0 else -1 if interval[1] < 0 else 0
+
+
+def difference(d: dict, key: str, digits: int, negate: bool = False) -> str:
+    """A paired difference ``d`` (``confidence_intervals.paired_differences``) as "+0.012 [+0.003, +0.021]";
+    ``negate`` prints b - a."""
+    f = -1.0 if negate else 1.0
+    low, high = sorted((f * d[f"{key}_ci95"][0], f * d[f"{key}_ci95"][1]))
+    return f"{f * d[key]:+.{digits}f} [{low:+.{digits}f}, {high:+.{digits}f}]"
 
 
 def method_row(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame]:

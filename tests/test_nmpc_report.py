@@ -1,0 +1,74 @@
+"""pipelines/nmpc.py: its verdict rule, its folder search, and the committed results/nmpc.json against them."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pipelines import nmpc
+from pipelines.reporting import sign
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_a_metric_changes_only_when_its_paired_interval_excludes_zero():
+    d = {"mean_event_cost_ci95": [-0.05, -0.01], "mean_vx_ci95": [0.1, 0.4], "mean_return_ci95": [-3.0, 2.0]}
+    assert nmpc.verdicts(d) == {"J_c": "safer", "v_x": "faster", "J_r": "no difference resolved"}
+    d = {"mean_event_cost_ci95": [0.0, 0.05], "mean_vx_ci95": [-0.4, -0.1], "mean_return_ci95": [1.0, 2.0]}
+    assert nmpc.verdicts(d) == {"J_c": "no difference resolved", "v_x": "slower", "J_r": "higher return"}
+    assert sign((0.001, 0.002)) == 1 and sign((-0.002, -0.001)) == -1 and sign((-0.001, 0.001)) == 0
+
+
+def test_converged_share_counts_the_fallback_steps():
+    assert nmpc.converged_share({"solved": 90, "shifted_previous": 8, "emergency_brake": 2}) == pytest.approx(0.9)
+
+
+def _copy_as(source: Path, target: Path, controller: str) -> None:
+    """A committed evaluation folder relabelled as another controller's (its episodes unchanged)."""
+    target.mkdir(parents=True)
+    for name in ("episodes.csv", "summary.json"):
+        shutil.copy(source / name, target / name)
+    config = yaml.safe_load((source / "config.yaml").read_text())
+    config["evaluation"]["controller"] = controller
+    (target / "config.yaml").write_text(yaml.safe_dump(config))
+
+
+def test_folders_are_found_by_config_and_an_nmpc_copy_of_ltv_mpc_pairs_to_zero(tmp_path, monkeypatch):
+    twin = ROOT / "results/evaluation/twin"
+    roots = (tmp_path / "nmpc", tmp_path / "twin", tmp_path / "tradeoff")
+    for method in ("ltv_mpc", "srmpc"):
+        _copy_as(twin / f"{method}_light", roots[1] / f"{method}_light", method)
+    for controller in ("nmpc_constant_velocity", "nmpc", "nmpc_rollout", "nmpc_best_of_two"):
+        source = twin / ("ltv_mpc_light" if controller == "nmpc" else "srmpc_light")
+        _copy_as(source, roots[0] / f"{controller}_x_light", controller)
+    monkeypatch.setattr(nmpc, "ROOTS", roots)
+    found = nmpc.folders("ltv_mpc", "light")
+    assert set(found) == set(nmpc.METHODS) and found["nmpc"] == roots[0] / "nmpc_x_light"
+    with pytest.raises(SystemExit, match="no finished .* in dense traffic"):
+        nmpc.folders("ltv_mpc", "dense")
+    with pytest.raises(SystemExit, match="no finished ltv_mpc, srmpc, nmpc_constant_velocity"):
+        nmpc.folders("paper_operating_point", "light")  # other planner settings: none of these folders
+    _copy_as(twin / "ltv_mpc_light", roots[2] / "ltv_mpc_again_light", "ltv_mpc")
+    with pytest.raises(SystemExit, match="both hold ltv_mpc"):
+        nmpc.folders("ltv_mpc", "light")
+
+
+@pytest.mark.skipif(not (ROOT / "results/nmpc.json").is_file(), reason="results/nmpc.json not generated")
+def test_committed_report_follows_its_rules():
+    report = json.loads((ROOT / "results/nmpc.json").read_text())
+    for planner in nmpc.PLANNERS:
+        for traffic in nmpc.TRAFFIC:
+            rows = report[planner][traffic]
+            assert set(rows) == set(nmpc.METHODS)
+            for method, row in rows.items():
+                assert row["episodes"] == 1000, (planner, traffic, method)
+                if method not in nmpc.COMPARATORS:
+                    for other in nmpc.COMPARATORS:
+                        assert row["paired"][other]["mean_vx"] == pytest.approx(
+                            row["mean_vx"] - rows[other]["mean_vx"], abs=1e-9)
+    assert len(report["verdicts"]) == len(nmpc.PLANNERS) * len(nmpc.TRAFFIC) * (
+        len(nmpc.CONVERGENCE_PAIRS) + len(nmpc.GUESS_PAIRS))
+    for v in report["verdicts"]:
+        assert v["verdicts"] == nmpc.verdicts(v["paired"])
