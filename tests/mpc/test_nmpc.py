@@ -253,7 +253,8 @@ def test_compact_subproblem_is_the_full_qp_bit_for_bit(states, warm):
         ego, last_input, others, tracking = planner_inputs(states, i)
         solver.solve(ego, last_input, others, tracking, states["cv_states"][i], states["cv_inputs"][i])
         qp, rows = solver.qp, solver.qp.n_observed  # the last subproblem; the memory holds its solution
-        full = RiccatiInteriorPointSolver(tolerance=solver.settings.qp_tolerance)
+        # both sides start warm (from the copied memory) or both cold: the NMPC itself starts its QPs cold
+        full = RiccatiInteriorPointSolver(tolerance=solver.settings.qp_tolerance, warm_start=warm)
         full.bind(qp)
         compact_memory = allocate_memory(horizon, 2 * solver.config.max_vehicles, solver.qp_solver.memory.z.size)
         for target in (full.memory, compact_memory):
@@ -262,10 +263,11 @@ def test_compact_subproblem_is_the_full_qp_bit_for_bit(states, warm):
             target.valid[0] = warm
         expected = full.solve(qp)
         status, iterations, solution = solve_subproblem(
-            solver._subproblem, rows, qp.measured_state, solver._qp_settings,
+            solver._subproblem, rows, qp.measured_state, solver._qp_settings._replace(warm_start=warm),
             allocate_workspace(horizon, 2 * solver.config.max_vehicles), compact_memory,
             allocate_compact(horizon, 2 * solver.config.max_vehicles))
         assert expected.solved and status == 0 and iterations == expected.iterations, i
+        assert full.last_started_warm == warm, i
         full_states, full_inputs, full_slacks, full_sigmas = qp.split_solution(expected.z)
         np.testing.assert_array_equal(solution.states, full_states)
         np.testing.assert_array_equal(solution.inputs, full_inputs)
