@@ -1,4 +1,5 @@
-"""The NMPC controllers (``evaluation.controller=nmpc|nmpc_constant_velocity|nmpc_rollout|nmpc_best_of_two``) in closed loop."""
+"""The NMPC controllers in closed loop
+(``evaluation.controller=nmpc|nmpc_constant_velocity|nmpc_rollout|nmpc_best_of_two``)."""
 
 from __future__ import annotations
 
