@@ -2,11 +2,13 @@
 
 Reads the table's evaluations under results/evaluation/twin/ (each row's method and traffic from its
 folder's config.yaml) and writes
-- results/table.json: ``[traffic][method]`` with mean_return, mean_return_per_step, mean_event_cost,
+- results/table.json: ``[traffic][method]`` with mean_return, return_per_step (the paper's J_r per step: mean J_r /
+  mean n_steps), mean_return_per_step (the mean of per-episode ratios, not the paper's), mean_event_cost,
   cost_rate, mean_n_steps, mean_vx, episodes, a ``<metric>_ci95`` [low, high] beside each metric
   (Wilson for J_c, bootstrap over episodes for the rest; srmpc.confidence_intervals) and the planner's
   step ``outcomes``; ``[traffic]["srmpc"]["paired_differences"][other]``: SRMPC minus LTV-MPC and
-  SRMPC minus PPO-L-SI on the same seeds, with CIs;
+  SRMPC minus PPO-L-SI on the same seeds, with CIs; ``["paired_ratios"][other]``: SRMPC's J_c and rho_c over the
+  other's on the same seeds (``ratio``, ``ratio_ci95``);
 - results/table.md: ours beside the paper's published values, and the paper's claims checked.
 """
 
@@ -31,7 +33,7 @@ from pipelines.reporting import (
     row_with_intervals,
     write_outputs,
 )
-from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
+from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences, paired_ratios
 
 
 def claims(traffic: dict, level: str) -> list[str]:
@@ -67,6 +69,16 @@ def claims(traffic: dict, level: str) -> list[str]:
     return lines
 
 
+def cut_text(r: dict) -> str:
+    """A paired ratio (``confidence_intervals.paired_ratios``) as the cut it makes: "96% lower [91%, 99%]"; an
+    unbounded ratio (the denominator can vanish) is said so."""
+    if r["ratio"] is None:
+        return "no finite ratio (the other's value is 0)"
+    low, high = r["ratio_ci95"]
+    upper = "no lower bound" if high == float("inf") else f"{1 - high:.0%}"
+    return f"{1 - r['ratio']:.0%} lower [{upper}, {1 - low:.0%}]"
+
+
 def _sign(low: float, high: float) -> int:
     """+1 / -1 when a 95% CI lies above / below 0, 0 when it contains 0."""
     return 1 if low > 0 else -1 if high < 0 else 0
@@ -75,7 +87,9 @@ def _sign(low: float, high: float) -> int:
 def performance_claims(traffic: dict, level: str) -> list[str]:
     """The Results section's other claims: light traffic, SRMPC's return and speed above both methods and
     its J_c and rho_c >30% (PPO-L-SI) and >65% (LTV-MPC) better; dense traffic, LTV-MPC slightly better in
-    return per step and speed, but comparable. Verdicts from the paired 95% CIs (same seeds)."""
+    return per step and speed, but comparable. Verdicts from the paired 95% CIs (same seeds): a cut "more than x%
+    lower" holds when the CI of the ratio SRMPC / other lies below 1 - x for J_c and rho_c, does not hold when one
+    lies above, and is not shown otherwise."""
     s, lines = traffic["srmpc"], []
     others = [m for m in ("ppo_lsi", "ltv_mpc") if m in s.get("paired_differences", {})]
     if not others:
@@ -96,17 +110,18 @@ def performance_claims(traffic: dict, level: str) -> list[str]:
         lines.insert(len(lines) - len(signs), "- Claim (light) \"SRMPC reaches a higher return and a higher "
                      f"average velocity than PPO-L-SI and LTV-MPC\": {verdict} here:")
         for m, threshold in (("ppo_lsi", 0.30), ("ltv_mpc", 0.65)):
-            if m not in traffic:
+            if m not in s.get("paired_ratios", {}):
                 continue
-            parts = []
+            parts, signs = [], []
             for key, name in (("mean_event_cost", "J_c"), ("cost_rate", "rho_c")):
-                theirs = traffic[m][key]
-                cut = 1 - s[key] / theirs if theirs else float("nan")
-                parts.append(f"{name} {cut:.0%} lower ({s[key]:.4g} vs {theirs:.4g})")
-            holds = all(1 - s[k] / traffic[m][k] > threshold for k in ("mean_event_cost", "cost_rate")
-                        if traffic[m][k])
+                r = s["paired_ratios"][m][key]
+                low, high = r["ratio_ci95"]
+                parts.append(f"{name} {s[key]:.4g} vs {traffic[m][key]:.4g}, {cut_text(r)}")
+                signs.append(1 if high < 1 - threshold else -1 if low > 1 - threshold else 0)
+            verdict = ("holds" if all(x > 0 for x in signs) else "does not hold" if any(x < 0 for x in signs)
+                       else "not shown (a CI reaches the threshold)")
             lines.append(f"- Claim (light) \"J_c and rho_c more than {threshold:.0%} better than {METHODS[m]}\": "
-                         f"{'; '.join(parts)}: {'holds' if holds else 'does not hold'} here.")
+                         f"{'; '.join(parts)}: {verdict} here.")
     if level == "dense" and "ltv_mpc" in others:
         d = s["paired_differences"]["ltv_mpc"]
         sign = _sign(*d["mean_vx_ci95"])
@@ -141,7 +156,7 @@ def crosscheck_lines(path: Path) -> list[str]:
 
 
 OPERATING_POINT = Path("results/operating_point.json")
-PUBLISHED_KEYS = {"mean_return_per_step": (1, "J_r per step"), "mean_event_cost": (2, "J_c"), "cost_rate": (3, "rho_c"),
+PUBLISHED_KEYS = {"return_per_step": (1, "J_r per step"), "mean_event_cost": (2, "J_c"), "cost_rate": (3, "rho_c"),
                   "mean_n_steps": (4, "n_steps"), "mean_vx": (5, "v_x")}
 """Table metric -> (index in PAPER's rows, name)."""
 
@@ -195,6 +210,10 @@ def main() -> None:
         if "srmpc" in rows:
             rows["srmpc"]["paired_differences"] = {
                 other: paired_differences(frames["srmpc"], frames[other], args.resamples, args.seed)
+                for other in PAIRED_AGAINST if other in frames
+            }
+            rows["srmpc"]["paired_ratios"] = {
+                other: paired_ratios(frames["srmpc"], frames[other], args.resamples, args.seed)
                 for other in PAIRED_AGAINST if other in frames
             }
         if "ppo_sb3" in rows and "ppo" in rows:  # the two PPOs on the same episodes

@@ -37,7 +37,8 @@ METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "ppo":
            "srmpc_recommended": "SRMPC, recommended (ours: srmpc=track_rollout planner=margin_1m)"}
 CONFIRMATION = Path("results/evaluation/confirmation")
 PAIRED_AGAINST = ("ltv_mpc", "ppo_lsi")
-PAPER = {  # Table "Evaluation results" of the paper: J_r, J_r per step, J_c, rho_c, n_steps, v_x
+PAPER = {  # Table "Evaluation results" of the paper: J_r, J_r per step (= J_r / n_steps of the row), J_c, rho_c,
+    # n_steps, v_x
     ("light", "ppo_lsi"): (-4669, -13.4, 0.308, 0.0009, 348, 23.11),
     ("light", "ltv_mpc"): (-1241, -5.1, 0.625, 0.0026, 244, 24.38),
     ("light", "srmpc"): (-1108, -3.1, 0.215, 0.0006, 357, 24.63),
@@ -45,8 +46,8 @@ PAPER = {  # Table "Evaluation results" of the paper: J_r, J_r per step, J_c, rh
     ("dense", "ltv_mpc"): (-334, -2.4, 0.788, 0.0057, 139, 24.79),
     ("dense", "srmpc"): (-1211, -4.0, 0.353, 0.0012, 305, 24.47),
 }
-HEADER = ("| Algorithm | mean J_r (per step) | mean J_c | rho_c | mean n_steps | mean v_x [m/s] |\n"
-          "|---|---|---|---|---|---|")
+HEADER = ("| Algorithm | mean J_r (J_r per step = mean J_r / mean n_steps) | mean J_c | rho_c | mean n_steps "
+          "| mean v_x [m/s] |\n|---|---|---|---|---|---|")
 
 
 def ci(row: dict, key: str, digits: int) -> str:
@@ -55,7 +56,7 @@ def ci(row: dict, key: str, digits: int) -> str:
 
 
 def row_with_intervals(name: str, r: dict) -> str:
-    return (f"| {name} | {ci(r, 'mean_return', 0)} ({ci(r, 'mean_return_per_step', 1)}) | "
+    return (f"| {name} | {ci(r, 'mean_return', 0)} ({ci(r, 'return_per_step', 1)}) | "
             f"{ci(r, 'mean_event_cost', 3)} | {ci(r, 'cost_rate', 4)} | {ci(r, 'mean_n_steps', 0)} | "
             f"{ci(r, 'mean_vx', 2)} |")
 

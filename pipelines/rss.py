@@ -193,12 +193,17 @@ def markdown(result: dict) -> str:
         lines.append(f"| {TRAINING_AGENTS[agent]} | {len(r['seeds'])} | {cell('return', 0)} | {cell('cost_return', 3)} "
                      f"| {cell('cost_rate', 6)} | {cell('vx', 2)} |")
     claim = result["training_claim"]
-    verdict = "holds" if claim["holds"] else "fails"
-    lines += ["", f"The paper's training claim for PPO-L-RSS ({claim['statement']}): **{verdict}**"
-              f" (cost-rate ratio PPO-L-RSS / PPO {claim['cost_rate_ratio_rss_over_ppo']:.2f}, return difference "
-              f"{claim['return_difference_rss_minus_ppo']:+.0f}; per seed: "
-              + ", ".join(f"seed {s}: {'holds' if v['holds'] else 'fails'}" for s, v in claim["per_seed"].items())
-              + ")."]
+    interval = lambda values, fmt: f"[{values[0]:{fmt}}, {values[1]:{fmt}}]" if values else "[-]"  # noqa: E731
+    lines += ["", f"The paper's training claim for PPO-L-RSS ({claim['statement']}): **{claim['verdict']}** "
+              f"(rule: {claim['rule']}). Pooled over the seeds: cost-rate ratio PPO-L-RSS / PPO "
+              f"{claim['cost_rate_ratio_rss_over_ppo']:.2f} "
+              f"{interval(claim['cost_rate_ratio_rss_over_ppo_ci95'], '.2f')}, return difference "
+              f"{claim['return_difference_rss_minus_ppo']:+.0f} "
+              f"{interval(claim['return_difference_rss_minus_ppo_ci95'], '+.0f')}. Per seed: "
+              + "; ".join(f"seed {s}: ratio {v['cost_rate_ratio_rss_over_ppo']:.2f} "
+                          f"{interval(v['cost_rate_ratio_rss_over_ppo_ci95'], '.2f')} ({v['events'][0]} against "
+                          f"{v['events'][1]} events), {v['verdict']}" for s, v in claim["per_seed"].items())
+              + "."]
     lines += ["", "## Evaluation (1000 episodes per traffic level on the table's seeds; 95% CIs)", ""]
     for traffic in TRAFFIC:
         rows = result["evaluation"][traffic]

@@ -43,7 +43,7 @@ from pipelines.reporting import (
     settings_of,
     write_outputs,
 )
-from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
+from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences, paired_ratios
 
 TWIN = Path("results/evaluation/twin")
 SWEEP = Path("results/evaluation/tradeoff")
@@ -58,8 +58,8 @@ RSS_POINTS = {"ppo_lsi/ppo_lsi_rss": ("PPO-L-RSS", "ppo_lsi"),
                                                 "srmpc_track_rollout")}
 """Rows of results/rss.json drawn as points: key -> (label, the color of the method it varies)."""
 RSS_SETTINGS = {"ppo_lsi/ppo_lsi_rss": "-", "srmpc/ppo_lsi_rss": "8 m", "srmpc_recommended/ppo_lsi_rss": "1 m"}
-TABLE_KEYS = ("episodes", "mean_return", "mean_return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps",
-              "mean_vx")
+TABLE_KEYS = ("episodes", "mean_return", "return_per_step", "mean_return_per_step", "mean_event_cost", "cost_rate",
+              "mean_n_steps", "mean_vx")
 
 
 def point(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame, str, str]:
@@ -159,6 +159,7 @@ def paper_operating_point(traffic: str, methods: dict, episodes: dict, resamples
         result["paired_difference"] = paired_differences(episodes[s["directory"]], episodes[ltv["directory"]],
                                                          resamples, seed)
         result["reduction"] = (1 - s["mean_event_cost"] / ltv["mean_event_cost"]) if ltv["mean_event_cost"] else None
+        result["ratio"] = paired_ratios(episodes[s["directory"]], episodes[ltv["directory"]], resamples, seed)
     return result
 
 
@@ -193,6 +194,8 @@ def confirmation(traffic: str, resamples: int, seed: int) -> dict | None:
             "paired_differences": {other: paired_differences(frames["srmpc_recommended"], frames[other],
                                                              resamples, seed)
                                    for other in ("ltv_mpc_margin_1m", "ppo_lsi")},
+            "paired_ratios": {other: paired_ratios(frames["srmpc_recommended"], frames[other], resamples, seed)
+                              for other in ("ltv_mpc_margin_1m", "ppo_lsi")},
             "target": {**TARGET[traffic], "meets": meets(TARGET[traffic])},
             "target_on_these_seeds": {**own_target, "meets": meets(own_target)},
             "stretch": {**STRETCH[traffic],
@@ -205,11 +208,45 @@ def ci(p: dict, key: str, digits: int) -> str:
     return f"{p[key]:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
+def ratio_text(r: dict) -> str:
+    """A paired ratio (``confidence_intervals.paired_ratios``) with its CI, and what its upper end bounds:
+    "0.018 [0.000, 0.060]: at most 1/17 (95% upper bound)". With a lower end at 0 only the bound is meaningful."""
+    if r["ratio"] is None:
+        return "no finite ratio (the other's J_c is 0)"
+    low, high = r["ratio_ci95"]
+    if high == float("inf"):
+        return f"{r['ratio']:.3f} [{low:.3f}, no upper bound]"
+    bound = f"at most 1/{1 / high:.0f} (95% upper bound)" if 0 < high < 1 else ""
+    return f"{r['ratio']:.3f} [{low:.3f}, {high:.3f}]" + (f": {bound}" if bound else "")
+
+
+def reduction(r: dict) -> str:
+    """1 - ratio of a paired ratio as a cut with its CI: "80% [76%, 84%]"."""
+    if r["mean_event_cost"]["ratio"] is None:
+        return "- (the other's J_c is 0)"
+    low, high = r["mean_event_cost"]["ratio_ci95"]
+    upper = "unbounded" if high == float("inf") else f"{1 - high:.0%}"
+    return f"{1 - r['mean_event_cost']['ratio']:.0%} [{upper}, {1 - low:.0%}]"
+
+
 def why(p: dict, goal: dict) -> str:
     """Each axis of a goal against point ``p``: ``J_c 0.001 ≤ 0.006; v_x 23.98 < 24.10``."""
     cost, vx = p["mean_event_cost"], p["mean_vx"]
     return (f"J_c {cost:.3f} {'≤' if cost <= goal['max_event_cost'] else '>'} {goal['max_event_cost']:.4g}; "
             f"v_x {vx:.2f} {'≥' if vx >= goal['min_vx'] else '<'} {goal['min_vx']:.2f}")
+
+
+def dominance_examples(verdict: dict) -> list[dict]:
+    """The SRMPC points a dominance verdict names: where dominance is shown, only points whose paired CIs exclude 0
+    on both axes (the one at the LTV-MPC point's own setting if it is among them, and the fastest); otherwise the
+    fastest point-estimate dominator, labelled as such by the caller."""
+    best = [c for c in verdict["srmpc_points"] if c["dominates_by_point_estimate"]]
+    shown = [c for c in best if c["dominance_shown"]]
+    if not shown:
+        return [max(best, key=lambda c: c["paired_difference"]["mean_vx"])] if best else []
+    same = [c for c in shown if c["settings"] == verdict["ltv_mpc"]["settings"]]
+    fastest = max(shown, key=lambda c: c["paired_difference"]["mean_vx"])
+    return [*same, *([fastest] if fastest not in same else [])]
 
 
 def markdown(report: dict) -> str:
@@ -249,12 +286,12 @@ def markdown(report: dict) -> str:
             else:
                 lines.append(head + "**not dominated**: no SRMPC point is both faster and safer.")
                 continue
-            parts = []
-            same = [c for c in best if c["settings"] == l_["settings"]]  # at the LTV-MPC point's own setting
-            fastest = max(best, key=lambda c: c["paired_difference"]["mean_vx"])
             shown = [c for c in best if c["dominance_shown"]]
-            head += f"{len(shown)} of {len(v['srmpc_points'])} SRMPC points (paired CIs), e.g. "
-            for c in [*same, *([fastest] if fastest not in same else [])]:
+            head += (f"{len(shown)} of {len(v['srmpc_points'])} SRMPC points, e.g. " if shown else
+                     f"{len(best)} of {len(v['srmpc_points'])} SRMPC points by point estimate, none shown; the "
+                     "fastest: ")
+            parts = []
+            for c in dominance_examples(v):
                 d = c["paired_difference"]
                 parts.append(f"{CURVES[c['method']]} at {label(c)} (Δv_x {d['mean_vx']:+.2f} "
                              f"[{d['mean_vx_ci95'][0]:+.2f}, {d['mean_vx_ci95'][1]:+.2f}], ΔJ_c "
@@ -279,7 +316,7 @@ def markdown(report: dict) -> str:
         if o["srmpc"] is not None and o.get("reduction") is not None:
             d = o["paired_difference"]
             lines.append(f"SRMPC at the same setting: J_c {ci(o['srmpc'], 'mean_event_cost', 3)}, v_x "
-                         f"{ci(o['srmpc'], 'mean_vx', 2)}; J_c reduced by {o['reduction']:.0%} (paper: "
+                         f"{ci(o['srmpc'], 'mean_vx', 2)}; J_c reduced by {reduction(o['ratio'])} (paper: "
                          f"{o['paper_reduction']:.0%}), paired ΔJ_c {d['mean_event_cost']:+.3f} "
                          f"[{d['mean_event_cost_ci95'][0]:+.3f}, {d['mean_event_cost_ci95'][1]:+.3f}].")
         c = r.get("confirmation")
@@ -299,7 +336,8 @@ def markdown(report: dict) -> str:
             for other, name in (("ppo_lsi", "PPO-L-SI"), ("ltv_mpc_margin_1m", "LTV-MPC")):
                 d = c["paired_differences"][other]
                 lines.append(f"- SRMPC - {name}, paired: Δv_x {ci(d, 'mean_vx', 2)}, ΔJ_c "
-                             f"{ci(d, 'mean_event_cost', 3)}, ΔJ_r {ci(d, 'mean_return', 0)}.")
+                             f"{ci(d, 'mean_event_cost', 3)}, ΔJ_r {ci(d, 'mean_return', 0)}; J_c SRMPC / {name}: "
+                             f"{ratio_text(c['paired_ratios'][other]['mean_event_cost'])}.")
             t, o, st = c["target"], c["target_on_these_seeds"], c["stretch"]
 
             lines += [f"- Target (v_x ≥ {t['min_vx']}, J_c ≤ {t['max_event_cost']}): "

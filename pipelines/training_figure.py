@@ -14,7 +14,8 @@ by the trainer; DVC stage ``train``) and writes:
   cost_return, cost_rate (and more) over the last 5% of training, ``per_seed`` (the same per seed),
   ``cost_rate_ci95``, ``cost_return_ci95``, ``return_ci95`` and ``vx_ci95`` (Student-t over seeds; null
   for one seed), the list ``seeds``, and the paper's claim (PPO-L-SI's final cost rate under half of PPO's,
-  its return not worse) evaluated on the means and per seed against our PPO (``paper_claim``) and against
+  its return not worse) judged from CIs (``CLAIM_RULE``: ``verdict`` holds / fails / not shown, pooled over seeds
+  and per seed, with the intervals it rests on) against our PPO (``paper_claim``) and against
   Stable-Baselines3's PPO (``paper_claim_vs_ppo_sb3``), the same claim for PPO-L-RSS against our PPO
   (``paper_claim_ppo_lsi_rss``, keys ``..._rss_over_ppo``), and ``flat_from_frames``: per series, the first
   frame after which the smoothed mean over seeds stays within 25% of its final value.
@@ -28,8 +29,10 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
+
 from srmpc.agents.report import read_metrics, summarize_training
-from srmpc.confidence_intervals import t_interval
+from srmpc.confidence_intervals import rate_ratio_interval, t_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -82,26 +85,88 @@ def summarize_seeds(per_seed: dict[int, dict[str, float]]) -> dict:
     return summary
 
 
-def paper_claim(ppo: dict, lsi: dict, baseline: str = "our PPO (srmpc.agents, constraint off)",
+CLAIM_RULE = ("holds when the 95% CI of the cost-rate ratio (constrained agent / PPO) lies below 0.5 and the CI of "
+              "the return difference (constrained agent - PPO) lies above 0; fails when the ratio's CI lies above "
+              "0.5 or the return difference's below 0; not shown otherwise. Per seed: the exact conditional interval "
+              "of the ratio of the two runs' event rates over the last 5% of training and Welch's t interval of the "
+              "difference of their per-iteration returns there; pooled over seeds: Student-t intervals over the "
+              "seeds of the log ratio (reported as a ratio) and of the return difference (seed s against seed s)")
+"""The paper's training claim, judged from CIs as every other verdict is."""
+
+
+def tail_counts(rows: list[dict[str, float]], last_fraction: float) -> dict:
+    """Over the last ``last_fraction`` of the frames (``summarize_training``'s window): the event count, the env
+    steps, and each iteration's mean return of the episodes that ended in it (iterations with none left out)."""
+    final = rows[-1]["frames"]
+    batch = {r["frames"]: r["frames"] - p["frames"] for p, r in zip([{"frames": 0.0}, *rows[:-1]], rows, strict=True)}
+    tail = [r for r in rows if r["frames"] > (1.0 - last_fraction) * final] or rows[-1:]
+    return {"events": int(round(sum(r["cost_rate"] * batch[r["frames"]] for r in tail))),
+            "steps": float(sum(batch[r["frames"]] for r in tail)),
+            "returns": [r["episode/return"] for r in tail if r["episodes"] > 0]}
+
+
+def welch_interval(a: list[float], b: list[float], confidence: float = 0.95) -> tuple[float, float]:
+    """Welch's t interval of mean(a) - mean(b)."""
+    from scipy.stats import t
+
+    x, y = np.asarray(a, float), np.asarray(b, float)
+    if min(x.size, y.size) < 2:
+        return (math.nan, math.nan)
+    va, vb = x.var(ddof=1) / x.size, y.var(ddof=1) / y.size
+    if va + vb == 0.0:
+        return (float(x.mean() - y.mean()), float(x.mean() - y.mean()))
+    dof = (va + vb) ** 2 / (va**2 / (x.size - 1) + vb**2 / (y.size - 1))
+    half = t.ppf(0.5 + confidence / 2.0, dof) * math.sqrt(va + vb)
+    return (float(x.mean() - y.mean() - half), float(x.mean() - y.mean() + half))
+
+
+def claim_verdict(ratio_ci: tuple[float, float] | None, difference_ci: tuple[float, float] | None) -> str:
+    """:data:`CLAIM_RULE` on the two intervals: ``holds``, ``fails`` or ``not shown``."""
+    if ratio_ci is None or difference_ci is None:
+        return "not shown"
+    if ratio_ci[0] > 0.5 or difference_ci[1] < 0:
+        return "fails"
+    return "holds" if ratio_ci[1] < 0.5 and difference_ci[0] > 0 else "not shown"
+
+
+def paper_claim(ppo: dict, lsi: dict, counts: dict, baseline: str = "our PPO (srmpc.agents, constraint off)",
                 agent: str = "PPO-L-SI", short: str = "lsi") -> dict:
-    """The paper's training claim for the constrained ``agent`` (keys named by ``short``) on the means over seeds,
-    and seed by seed (same seed, same resets)."""
-    holds = lambda a, b: bool(b["cost_rate"] < 0.5 * a["cost_rate"] and b["return"] >= a["return"])  # noqa: E731
+    """The paper's training claim for the constrained ``agent`` (keys named by ``short``) against ``ppo``, pooled
+    over seeds and seed by seed (same seed, same resets), by :data:`CLAIM_RULE`; ``counts[(agent or ppo)][seed]``
+    is :func:`tail_counts` of that run."""
     common = sorted(set(ppo["per_seed"]) & set(lsi["per_seed"]), key=int)
     ratio, difference = f"cost_rate_ratio_{short}_over_ppo", f"return_difference_{short}_minus_ppo"
+    per_seed = {}
+    for seed in common:
+        a, b = counts["agent"][int(seed)], counts["ppo"][int(seed)]
+        ratio_ci = rate_ratio_interval(a["events"], a["steps"], b["events"], b["steps"])
+        difference_ci = welch_interval(a["returns"], b["returns"])
+        per_seed[seed] = {ratio: lsi["per_seed"][seed]["cost_rate"] / ppo["per_seed"][seed]["cost_rate"]
+                          if ppo["per_seed"][seed]["cost_rate"] > 0 else None,
+                          f"{ratio}_ci95": list(ratio_ci), "events": [a["events"], b["events"]],
+                          difference: lsi["per_seed"][seed]["return"] - ppo["per_seed"][seed]["return"],
+                          f"{difference}_ci95": list(difference_ci), "verdict": claim_verdict(ratio_ci, difference_ci)}
+        per_seed[seed]["holds"] = per_seed[seed]["verdict"] == "holds"
+    logs = [math.log(v[ratio]) for v in per_seed.values() if v[ratio]]
+    log_ci = t_interval(logs) if len(logs) == len(common) else (math.nan, math.nan)
+    pooled_ratio_ci = None if math.isnan(log_ci[0]) else (math.exp(log_ci[0]), math.exp(log_ci[1]))
+    difference_ci = t_interval([v[difference] for v in per_seed.values()])
+    pooled_difference_ci = None if math.isnan(difference_ci[0]) else difference_ci
+    verdict = claim_verdict(pooled_ratio_ci, pooled_difference_ci)
     return {
         "statement": f"at the end of training {agent}'s cost rate is under half of PPO's and its return is not worse",
+        "rule": CLAIM_RULE,
         "ppo": baseline,
         ratio: lsi["cost_rate"] / ppo["cost_rate"] if ppo["cost_rate"] > 0 else None,
+        f"{ratio}_ci95": list(pooled_ratio_ci) if pooled_ratio_ci else None,
         difference: lsi["return"] - ppo["return"],
-        "holds": holds(ppo, lsi),
+        f"{difference}_ci95": list(pooled_difference_ci) if pooled_difference_ci else None,
+        "verdict": verdict,
+        "holds": verdict == "holds",
         "cost_rate_ci95_disjoint": None if None in (lsi["cost_rate_ci95"], ppo["cost_rate_ci95"]) else
         bool(lsi["cost_rate_ci95"][1] < ppo["cost_rate_ci95"][0]
              or ppo["cost_rate_ci95"][1] < lsi["cost_rate_ci95"][0]),
-        "per_seed": {seed: {ratio: lsi["per_seed"][seed]["cost_rate"]
-                            / ppo["per_seed"][seed]["cost_rate"] if ppo["per_seed"][seed]["cost_rate"] > 0 else None,
-                            difference: lsi["per_seed"][seed]["return"] - ppo["per_seed"][seed]["return"],
-                            "holds": holds(ppo["per_seed"][seed], lsi["per_seed"][seed])} for seed in common},
+        "per_seed": per_seed,
     }
 
 
@@ -171,14 +236,19 @@ def main() -> None:
                for agent, seeds in runs.items()}
     for agent, frames_by_series in flat.items():
         summary[agent]["flat_from_frames"] = {**frames_by_series, "tolerance": FLAT_TOLERANCE}
+    counts = {agent: {seed: tail_counts(rows, args.last_fraction) for seed, rows in seeds.items()}
+              for agent, seeds in runs.items()}
     if {"ppo", "ppo_lsi"} <= summary.keys():
-        summary["paper_claim"] = paper_claim(summary["ppo"], summary["ppo_lsi"])
+        summary["paper_claim"] = paper_claim(summary["ppo"], summary["ppo_lsi"],
+                                             {"ppo": counts["ppo"], "agent": counts["ppo_lsi"]})
     if {"ppo_sb3", "ppo_lsi"} <= summary.keys():
         summary["paper_claim_vs_ppo_sb3"] = paper_claim(summary["ppo_sb3"], summary["ppo_lsi"],
+                                                        {"ppo": counts["ppo_sb3"], "agent": counts["ppo_lsi"]},
                                                         "Stable-Baselines3's PPO with our PPO's settings")
     if {"ppo", "ppo_lsi_rss"} <= summary.keys():
-        summary["paper_claim_ppo_lsi_rss"] = paper_claim(summary["ppo"], summary["ppo_lsi_rss"], agent="PPO-L-RSS",
-                                                         short="rss")
+        summary["paper_claim_ppo_lsi_rss"] = paper_claim(summary["ppo"], summary["ppo_lsi_rss"],
+                                                         {"ppo": counts["ppo"], "agent": counts["ppo_lsi_rss"]},
+                                                         agent="PPO-L-RSS", short="rss")
     (args.training_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(json.dumps({k: v for k, v in summary.items()}, indent=2)[:4000])
 

@@ -66,7 +66,8 @@ class AggregateMetrics:
     mean_return: float
     """mean J_r."""
     mean_return_per_step: float
-    """mean over episodes of J_r / n_steps (the table's value in parentheses)."""
+    """mean over episodes of J_r / n_steps: a mean of ratios, not the paper's "J_r per step", which is mean J_r /
+    mean n_steps (``srmpc.confidence_intervals``' ``return_per_step``, printed beside the paper's numbers)."""
     mean_event_cost: float
     """mean J_c: the share of episodes that ended in a collision or road exit."""
     cost_rate: float

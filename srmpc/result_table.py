@@ -25,7 +25,7 @@ from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, tabl
 
 EVALUATION_ROWS = (  # (summary key, label, digits)
     ("mean_return", "J_r    return (sum of r')", 0),
-    ("mean_return_per_step", "J_r / step", 2),
+    ("return_per_step", "J_r / step  (mean J_r / mean n_steps)", 2),
     ("mean_event_cost", "J_c    collision or road exit", 3),
     ("cost_rate", "rho_c  events per step", 5),
     ("mean_n_steps", "n_steps", 1),
@@ -74,7 +74,8 @@ def evaluation_table(summary: Mapping[str, Any], intervals: Mapping[str, Any] | 
     for key, label, digits in EVALUATION_ROWS:
         interval = (intervals or {}).get(f"{key}_ci95")
         ci = f"[{_number(interval[0], digits)}, {_number(interval[1], digits)}]" if interval else "-"
-        table.add_row(Text(label), _number(summary.get(key), digits), ci)
+        value = summary.get(key, (intervals or {}).get(key))  # return_per_step: from the episodes
+        table.add_row(Text(label), _number(value, digits), ci)
     return table
 
 

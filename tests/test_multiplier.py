@@ -103,28 +103,38 @@ def test_t_interval_over_seeds_matches_the_student_t_formula():
 
 
 def _write_metrics(path: Path, cost_rate: float, episode_return: float) -> None:
+    """100 iterations of 10000 env steps; the returns alternate +-1 around ``episode_return``."""
     path.parent.mkdir(parents=True)
     columns = "iteration,frames,wall_s,episodes,episode/return,episode/train_return,episode/cost_return," \
               "episode/si_cost_return,episode/steps,episode/vx,cost_rate,step/reward,env_steps_per_s"
-    rows = [f"{i},{i * 100},{i},10,{episode_return},1,0.1,-1,300,20,{cost_rate},0.5,1000" for i in range(1, 21)]
+    rows = [f"{i},{i * 10000},{i},10,{episode_return + (-1) ** i},1,0.1,-1,300,20,{cost_rate},0.5,1000"
+            for i in range(1, 101)]
     path.write_text("\n".join([columns, *rows]) + "\n")
 
 
 def test_training_summary_is_the_mean_over_seeds_with_t_intervals_and_the_claim_per_seed(tmp_path):
-    for seed, (ppo_rate, lsi_rate) in enumerate([(1e-4, 4e-5), (2e-4, 6e-5), (3e-4, 2e-4)]):
-        _write_metrics(tmp_path / "ppo" / f"seed_{seed}" / "metrics.csv", ppo_rate, -100.0)
+    # over the last 5% (5 iterations, 50000 steps): PPO 50 events per seed; PPO-L-SI 10, 45 and 20
+    for seed, lsi_rate in enumerate([2e-4, 9e-4, 4e-4]):
+        _write_metrics(tmp_path / "ppo" / f"seed_{seed}" / "metrics.csv", 1e-3, -100.0)
         _write_metrics(tmp_path / "ppo_lsi" / f"seed_{seed}" / "metrics.csv", lsi_rate, -90.0)
     subprocess.run([sys.executable, str(ROOT / "pipelines/training_figure.py"), "--training-dir", str(tmp_path),
                     "--figure-dir", str(tmp_path / "figures")], check=True, capture_output=True)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["ppo"]["seeds"] == [0, 1, 2]
-    assert math.isclose(summary["ppo"]["cost_rate"], 2e-4) and math.isclose(summary["ppo_lsi"]["cost_rate"], 1e-4)
-    low, high = summary["ppo"]["cost_rate_ci95"]
-    assert low < 2e-4 < high
+    assert math.isclose(summary["ppo"]["cost_rate"], 1e-3) and math.isclose(summary["ppo_lsi"]["cost_rate"], 5e-4)
+    low, high = summary["ppo_lsi"]["cost_rate_ci95"]
+    assert low < 5e-4 < high
     claim = summary["paper_claim"]
     assert math.isclose(claim["cost_rate_ratio_lsi_over_ppo"], 0.5)
-    assert claim["holds"] is False  # 0.5 is not under half
-    assert [claim["per_seed"][s]["holds"] for s in ("0", "1", "2")] == [True, True, False]
+    per_seed = [claim["per_seed"][s] for s in ("0", "1", "2")]
+    assert [s["events"] for s in per_seed] == [[10, 50], [45, 50], [20, 50]]
+    # seed 0: ratio 0.2, CI below 0.5; seed 1: 0.9, CI above 0.5; seed 2: 0.4, CI across 0.5
+    assert [s["verdict"] for s in per_seed] == ["holds", "fails", "not shown"]
+    assert [s["holds"] for s in per_seed] == [True, False, False]
+    assert all(s["return_difference_lsi_minus_ppo_ci95"][0] > 0 for s in per_seed)
+    low, high = claim["cost_rate_ratio_lsi_over_ppo_ci95"]  # t over the seeds' log ratios: wide with 3 seeds
+    assert low < 0.2 * 0.9 and high > 0.9
+    assert claim["verdict"] == "not shown" and claim["holds"] is False
     assert (tmp_path / "figures" / "training.png").stat().st_size > 0
 
 

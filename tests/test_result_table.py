@@ -42,6 +42,7 @@ def test_evaluation_table_has_metrics_intervals_output_and_run_id(tmp_path, monk
     for label in ("J_r", "J_r / step", "J_c", "rho_c", "n_steps", "v_x [m/s]", "95% CI"):
         assert label in out
     assert "0.250" in out and "[0.046, 0.699]" in out  # J_c 1 of 4 with its Wilson interval
+    assert "-4.12" in out and "-3.10" not in out  # J_r per step: -4938 / 1200 from the episodes, not the summary
     assert "23.46" in out and "srmpc, dense traffic, 4 episodes on twin" in out
     assert "collision 1, offroad 0, truncated 3" in out
     assert f"output:     {tmp_path}" in out and f"MLflow run: {run_id}" in out

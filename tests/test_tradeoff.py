@@ -134,3 +134,23 @@ def test_points_come_from_each_folders_config_not_its_name(project):
     write_evaluation(project / "twin" / "another_srmpc_light", "srmpc", "light", 8, 20.0, 0)
     with pytest.raises(SystemExit, match="both hold srmpc in light traffic"):
         by_method(project / "twin")
+
+
+def _candidate(method: str, margin: float, dvx: float, shown: bool) -> dict:
+    return {"method": method, "settings": {"safety_margin_longitudinal_m": margin},
+            "paired_difference": {"mean_vx": dvx}, "dominates_by_point_estimate": dvx > 0, "dominance_shown": shown}
+
+
+def test_dominance_examples_are_only_pairs_shown_by_both_cis_when_any_is():
+    verdict = {"ltv_mpc": {"settings": {"safety_margin_longitudinal_m": 1.0}},
+               "srmpc_points": [_candidate("srmpc", 1.0, 0.11, False),  # faster by point estimate, CI crosses 0
+                                _candidate("srmpc_track_rollout", 1.0, 0.63, True),
+                                _candidate("srmpc", 4.0, 0.90, False),  # the fastest, but not shown
+                                _candidate("srmpc_track_rollout", 4.0, 0.74, True),
+                                _candidate("srmpc", 8.0, -0.2, False)]}
+    examples = tradeoff.dominance_examples(verdict)
+    assert [(c["method"], c["settings"]["safety_margin_longitudinal_m"]) for c in examples] == [
+        ("srmpc_track_rollout", 1.0), ("srmpc_track_rollout", 4.0)]  # own setting first, then the fastest shown
+    for c in verdict["srmpc_points"]:
+        c["dominance_shown"] = False  # none shown: the fastest point-estimate dominator, which the text labels
+    assert [c["paired_difference"]["mean_vx"] for c in tradeoff.dominance_examples(verdict)] == [0.90]
