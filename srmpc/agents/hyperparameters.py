@@ -25,8 +25,8 @@ from srmpc.value_checks import (
 
 MAX_HIDDEN_WIDTH = 4096
 """Widest hidden layer: a 4096 x 4096 layer holds 16.8M weights (67 MB in float32, 4x that with Adam's
-moments and the gradient) for the actor, both critics and the multiplier each. The paper's policy is a
-small 2 x 64 MLP; a width of 10^9 asked torch for 120 GB and died in its allocator."""
+moments and the gradient) for the actor, both critics and the multiplier each. Ours is a small 2 x 64
+MLP (the paper states no architecture); a width of 10^9 asked torch for 120 GB and died in its allocator."""
 MAX_NUM_ENVS = 65_536
 """Most parallel scenes B: the twin keeps about 5 kB per scene (41 vehicles), so 65,536 scenes are
 about 0.3 GB, 64x the default 1024."""
