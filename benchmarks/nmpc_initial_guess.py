@@ -18,10 +18,20 @@ SQP with our Riccati interior-point QP solver, the table's planner OCP) is solve
 
 and IPOPT (``srmpc.mpc.casadi_reference``, exact Hessian) from the same primal point. Timed: the
 NMPC's whole solve, process pinned to one core, numba on one thread, after a warm-up solve.
-Agreement with IPOPT: objective within ``AGREEMENT`` (relative), first input and trajectory within
-their absolute tolerances. Where they disagree, IPOPT warm-started at the NMPC's solution (small barrier)
-tells whether the NMPC's point is a KKT point of IPOPT's NLP (it then moves less than the trajectory
-tolerance): then the two reached different local optima and the lower objective is counted.
+
+- Agreement with IPOPT: objective within ``AGREEMENT`` (relative), first input and trajectory within
+  their absolute tolerances.
+- KKT certification of every converged NMPC plan: IPOPT warm-started at the plan (small barrier,
+  ``casadi_reference.WARM_START_OPTIONS``); certified when IPOPT succeeds and moves the trajectory less
+  than ``AGREEMENT``'s trajectory tolerance, i.e. the plan is a KKT point of IPOPT's NLP. Where the NMPC and
+  IPOPT from the same guess disagree and the plan is certified, they reached different local optima.
+- The NMPC's own KKT residual (``NmpcResult.kkt``, ``srmpc.mpc.nmpc_kkt``: stationarity, complementarity and
+  primal infeasibility with the last QP's multipliers, IPOPT's scaled error E), beside its convergence test:
+  its distribution over the converged plans, by IPOPT's verdict.
+- The lowest optimum of a state: the lowest objective among every solver's optimum for it, the NMPC's converged
+  plans from the three guesses and IPOPT's successful solves from the same guesses. A solve is at it when it
+  converged and its objective is within ``AGREEMENT``'s objective tolerance of it (the tolerance covers
+  IPOPT's interior slacks); shares are of all 300 states, a failed solve counted as not at it.
 """
 
 from __future__ import annotations
@@ -30,7 +40,6 @@ import argparse
 import json
 import os
 import platform
-import time
 from collections import Counter
 from pathlib import Path
 
@@ -57,6 +66,8 @@ TARGETS = {"policy_rollout_median_ms": 1.0, "rollout_fewer_median_iterations_tha
 median SQP iterations from the rollout than from constant velocity."""
 MAX_OBSERVED = 6
 """Observation slots; recorded predictions are padded to this many vehicles."""
+STATE_NAMES = ("x [m]", "y [m]", "psi [rad]", "v [m/s]")
+"""The plan's state components (``largest_move``)."""
 
 
 def record_states(states_per_run: int, stride: int, warmup: int, max_steps: int) -> dict[str, np.ndarray]:
@@ -128,30 +139,40 @@ def compare(nmpc, ipopt) -> dict[str, float]:
     return {"objective_relative": objective, "first_input": first_input, "trajectory": trajectory, "agree": agree}
 
 
-def time_qp_against_hpipm(solver: NmpcSolver, hpipm_factory) -> dict:
-    """Our Riccati interior-point solver and HPIPM on the same QP: the last SQP subproblem of the latest solve
-    (its stage-wise form, ``casadi_reference.HpipmQp``). Each solved twice, the second call timed."""
-    qp = solver.qp
-    for _ in range(2):
-        start = time.perf_counter()
-        ours = solver.qp_solver.solve(qp)
-        ours_s = time.perf_counter() - start
-    hpipm = hpipm_factory(qp)
-    for _ in range(2):
-        _, inputs, success, wall_s, internal_s, iterations = hpipm.solve()
-    first_input = float(np.abs(qp.split_solution(ours.z)[1][0] - inputs[0]).max()) if ours.solved else np.nan
-    return {"ours_s": ours_s, "ours_solved": ours.solved, "hpipm_wall_s": wall_s, "hpipm_internal_s": internal_s,
-            "hpipm_success": success, "hpipm_iterations": iterations, "first_input_difference": first_input,
-            "rows": int(qp.n_observed)}
+def kkt_fields(result) -> dict:
+    """The NMPC result's convergence-test quantities and its KKT residual (``NmpcResult.kkt``)."""
+    kkt = result.kkt
+    return {"primal_infeasibility": result.primal_infeasibility, "step_norm": result.stationarity,
+            "kkt_error": kkt.error, "kkt_stationarity": kkt.stationarity, "kkt_complementarity": kkt.complementarity,
+            "kkt_stationarity_scale": kkt.stationarity_scale,
+            "kkt_complementarity_scale": kkt.complementarity_scale}
 
 
-def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, hpipm_factory) -> list[dict]:
-    """Per state and guess: the NMPC's and IPOPT's outcomes (module doc); HPIPM on the rollout's last QP."""
+def certify(reference, planner_inputs: tuple, result) -> dict:
+    """IPOPT warm-started at a converged NMPC plan (module doc): what it did and whether the plan is certified."""
+    warm = reference.solve(*planner_inputs, result.states, result.inputs, result.collision_slacks,
+                           result.safety_slacks, warm=True)
+    difference = np.abs(warm.states - result.states)
+    stage, component = np.unravel_index(int(np.argmax(difference)), difference.shape)
+    drift = float(difference[stage, component])
+    return {"certified": bool(warm.success and drift <= AGREEMENT["trajectory_m"]), "ipopt_status": warm.status,
+            "ipopt_success": warm.success, "ipopt_iterations": warm.iterations, "trajectory_drift": drift,
+            "largest_move": {"stage": int(stage), "state": STATE_NAMES[component],
+                             "nmpc": float(result.states[stage, component]),
+                             "ipopt": float(warm.states[stage, component])},
+            "first_input_drift": float(np.abs(warm.inputs[0] - result.inputs[0]).max()),
+            "ipopt_objective": warm.objective, "objective_change": warm.objective - result.objective,
+            "ipopt_primal_infeasibility": warm.primal_infeasibility,
+            "ipopt_dual_infeasibility": warm.dual_infeasibility}
+
+
+def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference) -> list[dict]:
+    """Per state and guess: the NMPC's and IPOPT's outcomes and, for a converged plan, its certification."""
     records = []
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = state_inputs(states, i)
         n = others.shape[1]
-        record = {"dense": int(states["dense"][i]), "driver_srmpc": int(states["driver_srmpc"][i]),
+        record = {"state": i, "dense": int(states["dense"][i]), "driver_srmpc": int(states["driver_srmpc"][i]),
                   "n_observed": n, "has_previous": bool(states["has_previous"][i])}
         for guess in GUESSES:
             guess_states, guess_inputs = guess_of(states, i, guess)
@@ -162,17 +183,13 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, hpip
             row = {"status": result.status, "converged": result.converged, "iterations": result.iterations,
                    "time_s": result.solve_time_s, "qp_time_s": float(np.sum(result.qp_times_s)),
                    "objective": result.objective, "first_input": result.inputs[0].tolist(),
-                   "ipopt_success": ipopt.success, "ipopt_iterations": ipopt.iterations,
-                   "ipopt_time_s": ipopt.solve_time_s, "ipopt_objective": ipopt.objective}
+                   "ipopt_success": ipopt.success, "ipopt_status": ipopt.status,
+                   "ipopt_iterations": ipopt.iterations, "ipopt_time_s": ipopt.solve_time_s,
+                   "ipopt_objective": ipopt.objective, **kkt_fields(result)}
             row.update(compare(result, ipopt))
-            if result.converged and ipopt.success and not row["agree"]:
-                certified = reference.solve(ego, last_input, others, tracking, result.states, result.inputs,
-                                            result.collision_slacks, result.safety_slacks, warm=True)
-                row["nmpc_is_ipopt_kkt_point"] = bool(
-                    certified.success and np.abs(certified.states - result.states).max() <= AGREEMENT["trajectory_m"])
+            if result.converged:
+                row["certificate"] = certify(reference, (ego, last_input, others, tracking), result)
             record[guess] = row
-            if guess == "policy_rollout" and n:
-                record["hpipm"] = time_qp_against_hpipm(solver, hpipm_factory)
         rollout, shifted = record["policy_rollout"], record["shifted_previous"]
         candidates = [row for row in (rollout, shifted) if row["converged"]]
         best = min(candidates, key=lambda row: row["objective"]) if candidates else rollout
@@ -185,18 +202,31 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, hpip
     return records
 
 
+def lowest_optimum(record: dict) -> float:
+    """The lowest objective of every solver's optimum for the state (module doc); NaN if none succeeded."""
+    values = [record[g]["objective"] for g in GUESSES if record[g]["converged"]]
+    values += [record[g]["ipopt_objective"] for g in GUESSES if record[g]["ipopt_success"]]
+    return min(values) if values else float("nan")
+
+
+def at_lowest(objective: float, succeeded: bool, lowest: float) -> bool:
+    """A solve is at the state's lowest optimum: it succeeded and is within ``AGREEMENT``'s objective tolerance."""
+    return bool(succeeded and objective - lowest <= AGREEMENT["objective_relative"] * max(1.0, abs(lowest)))
+
+
 def summarize(records: list[dict]) -> dict:
-    """The initial-guess table: per guess iterations, time, failures, objective against the lowest."""
+    """The initial-guess table: per guess iterations, time, failures, and the lowest optimum (module doc) out of
+    all states."""
     table = {}
-    lowest = np.array([min(r[g]["objective"] for g in (*GUESSES, "best_of_two") if r[g]["converged"])
-                       if any(r[g]["converged"] for g in GUESSES) else np.nan for r in records])
+    lowest = np.array([lowest_optimum(r) for r in records])
     for guess in (*GUESSES, "best_of_two"):
         rows = [r[guess] for r in records]
         converged = np.array([row["converged"] for row in rows])
         iterations = np.array([row["iterations"] for row in rows], dtype=float)
         time_ms = np.array([row["time_s"] for row in rows]) * 1e3
         objective = np.array([row["objective"] for row in rows])
-        excess = (objective - lowest)[converged]
+        at = np.array([at_lowest(row["objective"], row["converged"], low) for row, low in zip(rows, lowest,
+                                                                                               strict=True)])
         entry = {
             "states": len(rows), "failures": int((~converged).sum()),
             "iterations_median": float(np.median(iterations[converged])),
@@ -205,14 +235,19 @@ def summarize(records: list[dict]) -> dict:
             "time_median_ms": float(np.median(time_ms)), "time_p99_ms": float(np.percentile(time_ms, 99)),
             "objective_median": float(np.median(objective[converged])),
             "objective_mean": float(np.mean(objective[converged])),
-            "share_at_lowest_objective": float(np.mean(excess <= 1e-4 * np.maximum(1.0, np.abs(lowest[converged])))),
-            "objective_excess_over_lowest_mean": float(np.mean(excess)),
+            "states_at_lowest_optimum": int(at.sum()), "share_of_states_at_lowest_optimum": float(at.mean()),
+            "converged_not_at_lowest_optimum": int((converged & ~at).sum()),
+            "objective_excess_over_lowest_mean": float(np.mean((objective - lowest)[converged])),
             "ipopt_iterations_median": float(np.median([row["ipopt_iterations"] for row in rows])),
             "ipopt_iterations_p99": float(np.percentile([row["ipopt_iterations"] for row in rows], 99)),
         }
         if guess != "best_of_two":
+            ipopt_at = [at_lowest(row["ipopt_objective"], row["ipopt_success"], low)
+                        for row, low in zip(rows, lowest, strict=True)]
             entry["failure_statuses"] = dict(Counter(row["status"] for row in rows if not row["converged"]))
             entry["ipopt_failures"] = int(sum(not row["ipopt_success"] for row in rows))
+            entry["ipopt_states_at_lowest_optimum"] = int(sum(ipopt_at))
+            entry["ipopt_share_of_states_at_lowest_optimum"] = float(np.mean(ipopt_at))
             entry["ipopt_time_median_ms"] = float(np.median([row["ipopt_time_s"] for row in rows]) * 1e3)
             entry["qp_time_median_ms"] = float(np.median([row["qp_time_s"] for row in rows]) * 1e3)
         else:
@@ -221,24 +256,41 @@ def summarize(records: list[dict]) -> dict:
     return table
 
 
+def lowest_optimum_summary(records: list[dict]) -> dict:
+    """Who found each state's lowest optimum: the NMPC from some guess, IPOPT only, or no solver."""
+    lowest = [lowest_optimum(r) for r in records]
+    by_nmpc = [any(at_lowest(r[g]["objective"], r[g]["converged"], low) for g in GUESSES)
+               for r, low in zip(records, lowest, strict=True)]
+    by_ipopt = [any(at_lowest(r[g]["ipopt_objective"], r[g]["ipopt_success"], low) for g in GUESSES)
+                for r, low in zip(records, lowest, strict=True)]
+    return {"states": len(records), "objective_tolerance_relative": AGREEMENT["objective_relative"],
+            "found_by_nmpc_from_some_guess": int(sum(by_nmpc)), "found_by_ipopt_from_some_guess": int(sum(by_ipopt)),
+            "found_by_ipopt_only": int(sum(b and not a for a, b in zip(by_nmpc, by_ipopt, strict=True))),
+            "found_by_nmpc_only": int(sum(a and not b for a, b in zip(by_nmpc, by_ipopt, strict=True))),
+            "no_solver_succeeded": int(sum(np.isnan(low) for low in lowest)),
+            "definition": "per state, the lowest objective among the NMPC's converged plans and IPOPT's successful "
+                          "solves from the three guesses; at it: within the relative tolerance"}
+
+
 def agreement(records: list[dict]) -> dict:
-    """How often the NMPC and IPOPT agree from the same guess; different local optima and which is lower."""
+    """How often the NMPC and IPOPT agree from the same guess; different local optima (disagreeing, the NMPC's
+    plan certified) and which is lower; disagreeing pairs whose NMPC plan IPOPT does not certify."""
     result = {"tolerances": AGREEMENT}
     total = {"pairs": 0, "both_converged": 0, "agree": 0, "different_local_optima": 0, "nmpc_lower": 0,
-             "ipopt_lower": 0, "nmpc_not_kkt_for_ipopt": 0}
+             "ipopt_lower": 0, "disagree_nmpc_not_certified": 0}
     for guess in GUESSES:
         rows = [r[guess] for r in records]
         both = [row for row in rows if row["converged"] and row["ipopt_success"]]
         agree = [row for row in both if row["agree"]]
-        different = [row for row in both if not row["agree"] and row.get("nmpc_is_ipopt_kkt_point")]
+        different = [row for row in both if not row["agree"] and row["certificate"]["certified"]]
         entry = {
             "pairs": len(rows), "both_converged": len(both), "agree": len(agree),
             "agreement_rate": len(agree) / max(1, len(both)),
             "different_local_optima": len(different),
             "nmpc_lower": sum(row["objective"] < row["ipopt_objective"] for row in different),
             "ipopt_lower": sum(row["objective"] >= row["ipopt_objective"] for row in different),
-            "nmpc_not_kkt_for_ipopt": sum(1 for row in both if not row["agree"]
-                                          and not row.get("nmpc_is_ipopt_kkt_point")),
+            "disagree_nmpc_not_certified": sum(1 for row in both if not row["agree"]
+                                               and not row["certificate"]["certified"]),
             "max_objective_relative_when_agreeing": max((row["objective_relative"] for row in agree), default=0.0),
             "max_first_input_when_agreeing": max((row["first_input"] for row in agree), default=0.0),
             "max_trajectory_when_agreeing": max((row["trajectory"] for row in agree), default=0.0),
@@ -252,21 +304,71 @@ def agreement(records: list[dict]) -> dict:
     return result
 
 
-def hpipm_summary(records: list[dict]) -> dict:
-    """Median times of our QP solver and HPIPM on the same QPs, and their ratio (ours / HPIPM)."""
-    rows = [r["hpipm"] for r in records if "hpipm" in r and r["hpipm"]["ours_solved"] and r["hpipm"]["hpipm_success"]]
-    ours = np.median([row["ours_s"] for row in rows]) * 1e6
-    wall = np.median([row["hpipm_wall_s"] for row in rows]) * 1e6
-    internal = np.median([row["hpipm_internal_s"] for row in rows]) * 1e6
-    return {"qps": len(rows), "qps_tried": sum("hpipm" in r for r in records),
-            "ours_median_us": float(ours), "hpipm_wall_median_us": float(wall),
-            "hpipm_internal_median_us": float(internal),
-            "ratio_ours_over_hpipm_wall": float(ours / wall), "ratio_ours_over_hpipm_internal": float(ours / internal),
-            "hpipm_iterations_median": float(np.median([row["hpipm_iterations"] for row in rows])),
-            "first_input_difference_max": float(np.max([row["first_input_difference"] for row in rows])),
-            "note": "QP: the last SQP subproblem from the policy's rollout, per state with observed vehicles; "
-                    "HPIPM through CasADi's conic interface (mode speed) on the same QP written stage-wise "
-                    "(casadi_reference.HpipmQp); wall = the CasADi call, internal = HPIPM's own time"}
+KKT_THRESHOLDS = (1e-6, 1e-4, 1e-2)
+"""Levels of the KKT error E whose counts the benchmark reports (IPOPT's own ``tol`` here is 1e-9)."""
+
+
+def quantiles(values) -> dict:
+    values = np.asarray(values, dtype=float)
+    if not values.size:
+        return {}
+    return {"median": float(np.median(values)), "p90": float(np.percentile(values, 90)),
+            "p99": float(np.percentile(values, 99)), "max": float(values.max())}
+
+
+def certification(records: list[dict]) -> dict:
+    """IPOPT's certification of every converged NMPC plan (module doc), per guess and in all, each plan that
+    fails it described."""
+    result = {"criterion": f"IPOPT warm-started at the plan succeeds and moves the trajectory at most "
+                           f"{AGREEMENT['trajectory_m']:g} (m, rad, m/s)"}
+    failures = []
+    for guess in GUESSES:
+        rows = [(r, r[guess]) for r in records if r[guess]["converged"]]
+        certified = [row for _, row in rows if row["certificate"]["certified"]]
+        result[guess] = {"converged_plans": len(rows), "certified": len(certified),
+                         "not_certified": len(rows) - len(certified),
+                         "trajectory_drift": quantiles([row["certificate"]["trajectory_drift"] for _, row in rows])}
+        for record, row in rows:
+            if not row["certificate"]["certified"]:
+                failures.append({
+                    "state": record["state"], "guess": guess, "traffic": "dense" if record["dense"] else "light",
+                    "n_observed": record["n_observed"],
+                    "nmpc": {key: row[key] for key in ("status", "iterations", "objective", "primal_infeasibility",
+                                                       "step_norm", "kkt_error", "kkt_stationarity",
+                                                       "kkt_complementarity")},
+                    "ipopt_cold_from_the_same_guess": {"success": row["ipopt_success"],
+                                                       "objective": row["ipopt_objective"], "agree": row["agree"],
+                                                       "trajectory_difference": row["trajectory"]},
+                    "ipopt_warm_at_the_plan": row["certificate"]})
+    plans = sum(result[g]["converged_plans"] for g in GUESSES)
+    certified = sum(result[g]["certified"] for g in GUESSES)
+    result["all_guesses"] = {"converged_plans": plans, "certified": certified, "not_certified": plans - certified}
+    result["not_certified"] = failures
+    return result
+
+
+def kkt_summary(records: list[dict]) -> dict:
+    """The NMPC's KKT residual over its converged plans (module doc): distribution, counts below
+    ``KKT_THRESHOLDS``, and by IPOPT's certification verdict."""
+    rows = [r[g] for r in records for g in GUESSES if r[g]["converged"]]
+    errors = np.array([row["kkt_error"] for row in rows])
+    certified = np.array([row["certificate"]["certified"] for row in rows])
+    not_certified_errors = np.sort(errors[~certified])
+    return {
+        "converged_plans": len(rows),
+        "error": quantiles(errors),
+        "stationarity": quantiles([row["kkt_stationarity"] for row in rows]),
+        "complementarity": quantiles([row["kkt_complementarity"] for row in rows]),
+        "primal_infeasibility": quantiles([row["primal_infeasibility"] for row in rows]),
+        "stationarity_scale": quantiles([row["kkt_stationarity_scale"] for row in rows]),
+        "complementarity_scale": quantiles([row["kkt_complementarity_scale"] for row in rows]),
+        "plans_with_error_at_most": {f"{level:g}": int((errors <= level).sum()) for level in KKT_THRESHOLDS},
+        "error_certified": quantiles(errors[certified]),
+        "error_not_certified": not_certified_errors.tolist(),
+        "rank_of_not_certified": [int((errors < e).sum()) for e in not_certified_errors],
+        "note": "E = max(r_d / s_d, r_p, r_c / s_c), IPOPT's scaled overall error (srmpc/mpc/nmpc_kkt.py) at the "
+                "returned plan with the last QP's multipliers; rank: plans with a smaller E",
+    }
 
 
 def figure(table: dict, records: list[dict], path: Path) -> None:
@@ -277,7 +379,7 @@ def figure(table: dict, records: list[dict], path: Path) -> None:
 
     guesses = (*GUESSES, "best_of_two")
     labels = ["constant\nvelocity", "shifted\nprevious", "policy\nrollout", "best of\ntwo"]
-    fig, axes = plt.subplots(1, 4, figsize=(17, 4))
+    fig, axes = plt.subplots(1, 5, figsize=(21, 4))
     iterations = [[r[g]["iterations"] for r in records if r[g]["converged"]] for g in guesses]
     axes[0].boxplot(iterations, showfliers=True)
     axes[0].set_xticks(range(1, 5), labels)
@@ -297,12 +399,26 @@ def figure(table: dict, records: list[dict], path: Path) -> None:
     axes[2].set_ylabel("share of states")
     axes[2].legend(fontsize=8)
     axes[2].set_title("Time to convergence")
-    shares = [table[g]["share_at_lowest_objective"] for g in guesses]
-    axes[3].bar(range(1, 5), shares, color="tab:green")
-    axes[3].set_xticks(range(1, 5), labels)
+    positions = np.arange(1, 5)
+    axes[3].bar(positions - 0.2, [table[g]["share_of_states_at_lowest_optimum"] for g in guesses], width=0.4,
+                color="tab:green", label="NMPC")
+    axes[3].bar(positions[:3] + 0.2, [table[g]["ipopt_share_of_states_at_lowest_optimum"] for g in GUESSES],
+                width=0.4, color="tab:grey", label="IPOPT, same guess")
+    axes[3].set_xticks(positions, labels)
     axes[3].set_ylim(0, 1)
-    axes[3].set_ylabel("share of converged solves")
-    axes[3].set_title("At the lowest optimum found from any guess")
+    axes[3].set_ylabel(f"share of all {len(records)} states")
+    axes[3].set_title("At the state's lowest optimum (any solver)", fontsize=10)
+    axes[3].legend(fontsize=8, loc="upper left")
+    rows = [r[g] for r in records for g in GUESSES if r[g]["converged"]]
+    errors = np.sort([row["kkt_error"] for row in rows])
+    axes[4].plot(errors, np.arange(1, errors.size + 1) / errors.size, color="tab:blue", label="converged plans")
+    failed = [row["kkt_error"] for row in rows if not row["certificate"]["certified"]]
+    axes[4].plot(failed, [np.mean(errors <= e) for e in failed], "rx", label="not certified by IPOPT")
+    axes[4].set_xscale("log")
+    axes[4].set_xlabel("KKT error E (IPOPT-scaled, last QP's multipliers)")
+    axes[4].set_ylabel("share of converged plans")
+    axes[4].set_title("The NMPC's KKT residual")
+    axes[4].legend(fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
@@ -320,7 +436,7 @@ def main() -> None:
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     numba.set_num_threads(1)
-    from srmpc.mpc.casadi_reference import HpipmQp, IpoptReference
+    from srmpc.mpc.casadi_reference import IpoptReference
 
     load_before = os.getloadavg()
     if args.load_states:
@@ -339,7 +455,7 @@ def main() -> None:
     reference = IpoptReference(ocp)
     ego, last_input, others, tracking = state_inputs(states, 0)
     solver.solve(ego, last_input, others, tracking, *guess_of(states, 0, "policy_rollout"))  # compile
-    records = solve_all(states, solver, reference, HpipmQp)
+    records = solve_all(states, solver, reference)
     table = summarize(records)
     rollout, constant = table["policy_rollout"], table["constant_velocity"]
     measured = {"policy_rollout_median_ms": rollout["time_median_ms"],
@@ -347,8 +463,10 @@ def main() -> None:
                     rollout["iterations_median"] < constant["iterations_median"]}
     result = {
         "per_guess": table,
+        "lowest_optimum": lowest_optimum_summary(records),
         "agreement_with_ipopt": agreement(records),
-        "qp_subsolver_vs_hpipm": hpipm_summary(records),
+        "kkt_certification_by_ipopt": certification(records),
+        "kkt_residual": kkt_summary(records),
         "targets": {"policy_rollout_median_ms": {"limit": TARGETS["policy_rollout_median_ms"],
                                                  "measured": measured["policy_rollout_median_ms"],
                                                  "ratio_to_target": measured["policy_rollout_median_ms"]
@@ -372,8 +490,10 @@ def main() -> None:
     OUTPUT.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(OUTPUT, json.dumps(result, indent=2) + "\n")
     figure(table, records, FIGURE)
-    print(json.dumps({"per_guess": table, "agreement": result["agreement_with_ipopt"]["all_guesses"],
-                      "targets": result["targets"]}, indent=1))
+    print(json.dumps({"per_guess": table, "lowest_optimum": result["lowest_optimum"],
+                      "agreement": result["agreement_with_ipopt"]["all_guesses"],
+                      "certification": result["kkt_certification_by_ipopt"]["all_guesses"],
+                      "kkt_residual": result["kkt_residual"]["error"], "targets": result["targets"]}, indent=1))
 
 
 if __name__ == "__main__":

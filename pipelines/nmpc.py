@@ -11,8 +11,9 @@ Reads, at each planner config (the table's, ``planner=ltv_mpc``, and the paper's
   two (AC4MPC's rule) (DVC stage ``evaluate_nmpc``);
 - LTV-MPC and SRMPC at the same config: ``results/evaluation/twin/`` (the table's runs) and
   ``results/evaluation/tradeoff/`` (the operating point's), each folder found by its ``config.yaml``;
-- ``results/benchmarks/nmpc_initial_guess.json``: SQP iterations, time and optimum per guess on 300 recorded states,
-  and the agreement with CasADi + IPOPT.
+- ``results/benchmarks/nmpc_initial_guess.json``: SQP iterations, time and optimum per guess on 300 recorded states
+  (the lowest optimum over every solver's optimum for a state, out of all states), the agreement with CasADi +
+  IPOPT, IPOPT's KKT certification of every converged plan and the NMPC's own KKT residual.
 
 Writes ``results/nmpc.json`` (``[planner][traffic][method]``: the table metrics with 95% CIs, the share of steps
 whose SQP converged, and ``paired`` differences against LTV-MPC and SRMPC; ``verdicts``; ``initial_guess_study``)
@@ -47,6 +48,9 @@ METHODS = {"ltv_mpc": "LTV-MPC", "srmpc": "SRMPC (Algorithm 1)",
            "nmpc_rollout": "NMPC from the policy's rollout", "nmpc_best_of_two": "NMPC, best of two (AC4MPC)"}
 """Method (``reporting.method_of``) -> label; the first two are the comparators every NMPC row is paired with."""
 COMPARATORS = ("ltv_mpc", "srmpc")
+EXTRA_PAIRS = {"nmpc_best_of_two": ("nmpc_rollout",)}
+"""Further paired differences in a row's ``paired``: best of two against its own solve from the rollout (what the
+second solve from the shifted previous solution changes)."""
 CONVERGENCE_PAIRS = (("nmpc", "ltv_mpc"), ("nmpc_rollout", "srmpc"))
 """(converged, one QP) about the same initial guess: what solving to convergence changes."""
 GUESS_PAIRS = (("nmpc_rollout", "nmpc_constant_velocity"), ("nmpc_rollout", "nmpc"))
@@ -54,6 +58,9 @@ GUESS_PAIRS = (("nmpc_rollout", "nmpc_constant_velocity"), ("nmpc_rollout", "nmp
 VERDICT_METRICS = {"mean_event_cost": ("J_c", ("less safe", "safer")), "mean_vx": ("v_x", ("faster", "slower")),
                    "mean_return": ("J_r", ("higher return", "lower return"))}
 """Paired metric -> (label, (word when the CI is above 0, word when below))."""
+STUDY_KEYS = ("per_guess", "lowest_optimum", "agreement_with_ipopt", "kkt_certification_by_ipopt", "kkt_residual",
+              "machine")
+"""The keys of ``results/benchmarks/nmpc_initial_guess.json`` the report carries."""
 STUDY_GUESSES = {"constant_velocity": "constant velocity", "shifted_previous": "shifted previous",
                  "policy_rollout": "policy rollout", "best_of_two": "best of two"}
 
@@ -108,7 +115,7 @@ def closed_loop(resamples: int, seed: int) -> tuple[dict, list[dict]]:
             for method in METHODS:
                 if method not in COMPARATORS:
                     rows[method]["paired"] = {other: paired_differences(frames[method], frames[other], resamples, seed)
-                                              for other in COMPARATORS}
+                                              for other in (*COMPARATORS, *EXTRA_PAIRS.get(method, ()))}
             for kind, pairs in (("convergence", CONVERGENCE_PAIRS), ("initial_guess", GUESS_PAIRS)):
                 for a, b in pairs:
                     paired = paired_differences(frames[a], frames[b], resamples, seed)
@@ -119,13 +126,32 @@ def closed_loop(resamples: int, seed: int) -> tuple[dict, list[dict]]:
 
 
 def study_lines(study: dict) -> list[str]:
-    lines = ["| guess | SQP iterations median / p99 | ms median / p99 | failures | at the lowest optimum | "
-             "IPOPT iterations median |", "|---|---|---|---|---|---|"]
+    """The per-guess table; "at the lowest optimum" counts states out of all, a failed solve as not at it."""
+    lowest = study["lowest_optimum"]
+    lines = ["| guess | SQP iterations median / p99 | ms median / p99 | failures | NMPC at the lowest optimum | "
+             "IPOPT (same guess) at the lowest optimum | IPOPT iterations median |", "|---|---|---|---|---|---|---|"]
     for key, label in STUDY_GUESSES.items():
         g = study["per_guess"][key]
+        ipopt = (f"{g['ipopt_states_at_lowest_optimum']} of {g['states']} "
+                 f"({g['ipopt_share_of_states_at_lowest_optimum']:.0%})" if "ipopt_states_at_lowest_optimum" in g
+                 else "–")
         lines.append(f"| {label} | {g['iterations_median']:.0f} / {g['iterations_p99']:.0f} | "
-                     f"{g['time_median_ms']:.1f} / {g['time_p99_ms']:.0f} | {g['failures']} / {g['states']} | "
-                     f"{g['share_at_lowest_objective']:.0%} | {g['ipopt_iterations_median']:.0f} |")
+                     f"{g['time_median_ms']:.1f} / {g['time_p99_ms']:.0f} | {g['failures']} of {g['states']} | "
+                     f"{g['states_at_lowest_optimum']} of {g['states']} ({g['share_of_states_at_lowest_optimum']:.0%}) "
+                     f"| {ipopt} | {g['ipopt_iterations_median']:.0f} |")
+    machine = study.get("machine")
+    if machine:
+        before, after = machine["load_average_1_5_15min_before"][0], machine["load_average_1_5_15min_after"][0]
+        lines += ["", f"Times: one core of a {machine['cpus']}-core machine whose 1-minute load average was "
+                      f"{before:.1f} before the run and {after:.1f} after it (other jobs ran beside it): compare them "
+                      f"with each other, not with other runs."]
+    lines += ["", f"The lowest optimum of a state: the lowest objective among every solver's optimum for it (the "
+                  f"NMPC's converged plans from the three guesses and IPOPT's successful solves from the same "
+                  f"guesses); a solve is at it within {lowest['objective_tolerance_relative']:g} relative, and a "
+                  f"failed solve is not. Of the {lowest['states']} states, the NMPC from some guess reached it in "
+                  f"{lowest['found_by_nmpc_from_some_guess']}, IPOPT from some guess in "
+                  f"{lowest['found_by_ipopt_from_some_guess']}; only IPOPT in {lowest['found_by_ipopt_only']}, "
+                  f"only the NMPC in {lowest['found_by_nmpc_only']}."]
     return lines
 
 
@@ -139,8 +165,49 @@ def agreement_lines(agreement: dict) -> list[str]:
         a = agreement.get(key)
         if a:
             lines.append(f"- {label}: {a['agree']} of {a['both_converged']} pairs where both converged agree "
-                         f"({a['agreement_rate']:.0%}); {a['different_local_optima']} reach different local optima, "
-                         f"ours lower in {a['nmpc_lower']}, IPOPT's in {a['ipopt_lower']}.")
+                         f"({a['agreement_rate']:.0%}); {a['different_local_optima']} reach different local optima "
+                         f"(our plan certified below), ours lower in {a['nmpc_lower']}, IPOPT's in "
+                         f"{a['ipopt_lower']}; in {a['disagree_nmpc_not_certified']} IPOPT does not certify our plan.")
+    return lines
+
+
+def certification_lines(certification: dict, kkt: dict) -> list[str]:
+    """IPOPT's KKT certification of every converged plan, each failure described, and the NMPC's KKT residual."""
+    total = certification["all_guesses"]
+    per_guess = "; ".join(f"{label} {certification[key]['certified']} of {certification[key]['converged_plans']}"
+                          for key, label in STUDY_GUESSES.items() if key in certification)
+    lines = [f"KKT certification ({certification['criterion']}): {total['certified']} of the "
+             f"{total['converged_plans']} converged plans are KKT points of IPOPT's NLP ({per_guess})"
+             + (f"; {total['not_certified']} are not:" if total["not_certified"] else "."), ""]
+    for f in certification["not_certified"]:
+        nmpc, warm, cold = f["nmpc"], f["ipopt_warm_at_the_plan"], f["ipopt_cold_from_the_same_guess"]
+        move = warm["largest_move"]
+        lines.append(
+            f"- state {f['state']} ({f['traffic']}, {f['n_observed']} observed), {STUDY_GUESSES[f['guess']]}: the "
+            f"NMPC converged in {nmpc['iterations']} iterations (theta {nmpc['primal_infeasibility']:.1e}, step "
+            f"{nmpc['step_norm']:.1e}, KKT error E {nmpc['kkt_error']:.1e}: stationarity "
+            f"{nmpc['kkt_stationarity']:.1e}, complementarity {nmpc['kkt_complementarity']:.1e}) at F = "
+            f"{nmpc['objective']:.2f}; IPOPT started there: {warm['ipopt_status']} after {warm['ipopt_iterations']} "
+            f"iterations, its largest move {move['state']} at stage {move['stage']} from {move['nmpc']:.2f} to "
+            f"{move['ipopt']:.2f}, the first input by {warm['first_input_drift']:.2g}, F "
+            f"{warm['objective_change']:+.2f} ({warm['objective_change'] / nmpc['objective']:+.1%}; its final "
+            f"primal / dual infeasibility {warm['ipopt_primal_infeasibility']:.1e} / "
+            f"{warm['ipopt_dual_infeasibility']:.1e}); IPOPT from the same guess "
+            f"{'agrees' if cold['agree'] else 'does not agree'} (F = {cold['objective']:.2f}).")
+    if kkt:
+        error, counts = kkt["error"], kkt["plans_with_error_at_most"]
+        below = ", ".join(f"{count} at most {level}" for level, count in counts.items())
+        text = (f"The NMPC's own KKT residual with the last QP's multipliers (IPOPT's scaled error E; "
+                f"`srmpc/mpc/nmpc_kkt.py`), reported beside its convergence test: over the {kkt['converged_plans']} "
+                f"converged plans E median {error['median']:.1e}, p90 {error['p90']:.1e}, p99 {error['p99']:.1e}, "
+                f"max {error['max']:.1e} ({below}).")
+        if kkt["error_not_certified"]:
+            text += (" The plans IPOPT does not certify have E "
+                     + ", ".join(f"{e:.1e}" for e in kkt["error_not_certified"])
+                     + f" ({', '.join(str(r) for r in kkt['rank_of_not_certified'])} of the "
+                       f"{kkt['converged_plans']} plans have a smaller E); the certified ones median "
+                       f"{kkt['error_certified']['median']:.1e}, max {kkt['error_certified']['max']:.1e}.")
+        lines += ["", text]
     return lines
 
 
@@ -148,13 +215,16 @@ def markdown(result: dict) -> str:
     lines = ["# NMPC solved to convergence, from four initial guesses", "",
              "The planner's OCP without linearization (`srmpc/mpc/nmpc.py`: SQP on the exact bicycle and ellipse "
              "constraints, `riccati_ipm` subproblems, l1 merit line search; converged: NLP infeasibility <= 1e-6 and "
-             "QP step <= 1e-4 within 50 iterations). A step whose SQP does not converge falls back to LTV-MPC's "
-             "chain (the last plan shifted, else the emergency brake).", "",
+             "QP step <= 1e-4 within 50 iterations, a KKT proxy without multipliers; the KKT residual with "
+             "multipliers and IPOPT's certification are reported below). A step whose SQP does not converge falls "
+             "back to LTV-MPC's chain (the last plan shifted, else the emergency brake).", "",
              f"## The initial-guess study (`{result['initial_guess_study']['source']}`)", ""]
     lines += study_lines(result["initial_guess_study"]) + [""]
-    agreement = result["initial_guess_study"].get("agreement_with_ipopt")
-    if agreement:
-        lines += agreement_lines(agreement) + [""]
+    study = result["initial_guess_study"]
+    if study.get("agreement_with_ipopt"):
+        lines += agreement_lines(study["agreement_with_ipopt"]) + [""]
+    if study.get("kkt_certification_by_ipopt"):
+        lines += certification_lines(study["kkt_certification_by_ipopt"], study.get("kkt_residual")) + [""]
     lines += ["## Closed loop", "",
               "1000 episodes per cell on the table's seeds (episode i from seed i, every method the same scenes). "
               "J_c: share of episodes ending in a collision or road exit (Wilson 95% CI); v_x [m/s] and J_r: "
@@ -206,12 +276,14 @@ def summary(judged: list[dict], study: dict) -> list[str]:
     rollout, constant = guesses["policy_rollout"], guesses["constant_velocity"]
     shifted = guesses["shifted_previous"]
     sentences.append(
-        f"On the study's 300 states the rollout takes {rollout['iterations_median']:.0f} median SQP iterations against "
+        f"On the study's {rollout['states']} states the rollout takes {rollout['iterations_median']:.0f} median SQP "
+        f"iterations against "
         f"{constant['iterations_median']:.0f} from constant velocity and {shifted['iterations_median']:.0f} from the "
         f"shifted previous solution ({rollout['time_median_ms']:.1f} against {constant['time_median_ms']:.1f} and "
-        f"{shifted['time_median_ms']:.1f} ms median) and reaches the lowest optimum in "
-        f"{rollout['share_at_lowest_objective']:.0%} of states ({constant['share_at_lowest_objective']:.0%} and "
-        f"{shifted['share_at_lowest_objective']:.0%}).")
+        f"{shifted['time_median_ms']:.1f} ms median) and reaches the lowest optimum that any solver found (the "
+        f"NMPC from any guess or IPOPT) in {rollout['states_at_lowest_optimum']} of {rollout['states']} states "
+        f"({constant['states_at_lowest_optimum']} and {shifted['states_at_lowest_optimum']} of {shifted['states']}; "
+        f"failures counted as not reaching it).")
     return sentences
 
 
@@ -223,8 +295,7 @@ def main() -> None:
     study = json.loads(STUDY.read_text())
     rows, judged = closed_loop(args.resamples, args.seed)
     result = {**rows, "verdicts": judged, "summary": summary(judged, study),
-              "initial_guess_study": {"source": str(STUDY), "per_guess": study["per_guess"],
-                                      "agreement_with_ipopt": study.get("agreement_with_ipopt")}}
+              "initial_guess_study": {"source": str(STUDY), **{key: study.get(key) for key in STUDY_KEYS}}}
     text = markdown(result)
     write_outputs({Path("results/nmpc.md"): text, Path("results/nmpc.json"): json.dumps(result, indent=2) + "\n"})
     print(text)

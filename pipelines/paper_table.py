@@ -178,19 +178,21 @@ def operating_point_lines(table: dict, path: Path) -> list[str]:
              "25 m/s and crashes in most episodes. `planner=paper_operating_point` "
              "(`conf/planner/paper_operating_point.yaml`: the four slack prices x0.05, speed weight 10, 1 m margin) "
              "was calibrated on LTV-MPC in light traffic alone, on seeds 200000 + i "
-             "(`results/operating_point/calibration.md`), to the paper's light LTV-MPC row; "
-             "`results/operating_point.md` is the paper's table at that setting."]
+             "(`results/operating_point/calibration.md`), to the paper's light LTV-MPC row, and frozen by a rule "
+             "written after its predictions ran; `planner=declared_rule_probe` is the probe the rule declared before "
+             "the calibration selects. `results/operating_point.md` is the paper's table at both settings."]
     point = json.loads(path.read_text()) if path.exists() else None
     lines += ["", "Published numbers (J_r per step, J_c, rho_c, n_steps, v_x) inside our 95% CI, per config:", "",
-              "| traffic | method | `planner=ltv_mpc` (rows above) | `planner=paper_operating_point` |",
-              "|---|---|---|---|"]
+              "| traffic | method | `planner=ltv_mpc` (rows above) | `planner=paper_operating_point` | "
+              "`planner=declared_rule_probe` |", "|---|---|---|---|---|"]
+    declared = (point or {}).get("declared_rule_probe")
     for traffic in ("light", "dense"):
         for method in ("ltv_mpc", "srmpc"):
             published = PAPER[(traffic, method)]
             default = reproduced(table[traffic][method], published) if method in table.get(traffic, {}) else []
-            ours = reproduced(point[traffic][method], published) if point else None
+            cells = [reproduced(rows[traffic][method], published) if rows else None for rows in (point, declared)]
             lines.append(f"| {traffic} | {METHODS[method]} | {', '.join(default) or 'none'} | "
-                         f"{'not run' if ours is None else ', '.join(ours) or 'none'} |")
+                         + " | ".join("not run" if c is None else ", ".join(c) or "none" for c in cells) + " |")
     return [*lines, ""]
 
 

@@ -13,7 +13,8 @@ settings and traffic come from its folder's ``config.yaml``, never from its name
 
 - ``results/tradeoff.json``: ``[traffic][method]`` is a list of points, each with its ``settings``,
   ``episodes``, ``mean_event_cost``, ``mean_vx``, ``mean_return`` (and the other keys of ``table.json``)
-  with their ``_ci95``; ``[traffic]["dominance"]``, ``["at_policy_speed"]`` and ``["paper_operating_point"]``;
+  with their ``_ci95`` and ``versus_table_planner`` (v_x difference and J_c ratio against the curve's 8 m point);
+  ``[traffic]["dominance"]``, ``["at_policy_speed"]`` and ``["paper_operating_point"]``;
 - ``results/tradeoff.md``: the same as tables, with the verdicts in words;
 - ``results/figures/tradeoff.png``: one panel per traffic level, 95% CIs on both axes; with ``results/rss.json``
   (DVC stage ``rss``) also PPO-L-RSS's policy and SRMPC proposed by it (table planner, recommended setting) as
@@ -94,7 +95,23 @@ def collect(resamples: int, seed: int) -> tuple[dict, dict]:
     for methods in points.values():
         for curve in methods.values():
             curve.sort(key=lambda q: q["mean_vx"])
+        for curve in CURVES:
+            versus_table_planner(methods[curve])
     return points, episodes
+
+
+def versus_table_planner(curve: list[dict]) -> None:
+    """Add to each point of ``curve`` ``versus_table_planner``: its mean v_x minus that of the curve's point at the
+    table's planner (the 8 m point, a run under ``results/evaluation/twin/``), and its J_c over that point's (None
+    where that J_c is 0). Point estimates of two unpaired means; the paired CIs are in ``dominance``."""
+    reference = next((p for p in curve if Path(p["directory"]).is_relative_to(TWIN)), None)
+    if reference is None:
+        return
+    for p in curve:
+        p["versus_table_planner"] = {
+            "mean_vx_difference": p["mean_vx"] - reference["mean_vx"],
+            "mean_event_cost_ratio": (p["mean_event_cost"] / reference["mean_event_cost"]
+                                      if reference["mean_event_cost"] else None)}
 
 
 def label(p: dict) -> str:
@@ -121,7 +138,9 @@ def dominance(methods: dict, episodes: dict, resamples: int, seed: int) -> list[
                 d = paired_differences(episodes[s["directory"]], episodes[ltv["directory"]], resamples, seed)
                 faster, safer = d["mean_vx"] > 0, d["mean_event_cost"] < 0
                 shown = d["mean_vx_ci95"][0] > 0 and d["mean_event_cost_ci95"][1] < 0
+                ratios = paired_ratios(episodes[s["directory"]], episodes[ltv["directory"]], resamples, seed)
                 candidates.append({"method": curve, "settings": s["settings"], "paired_difference": d,
+                                   "paired_ratios": ratios,
                                    "dominates_by_point_estimate": bool(faster and safer),
                                    "dominance_shown": bool(shown)})
         verdicts.append({"ltv_mpc": {"settings": ltv["settings"], "mean_vx": ltv["mean_vx"],

@@ -7,6 +7,7 @@
 - Every command in a ```bash block parses: ``python -m srmpc`` overrides compose (every value of a
   ``-m`` sweep at least once), ``python <script>`` names a script that exists, ``make <target>`` a
   Makefile target, ``dvc repro <stage>`` a stage of ``dvc.yaml``.
+- Every other number of the README's results and of docs/results.md: ``tests/test_numbers_traceable.py``.
 
 The checkers are plain functions; the last tests feed them broken input to show that they fail.
 """

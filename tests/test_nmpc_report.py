@@ -72,3 +72,24 @@ def test_committed_report_follows_its_rules():
         len(nmpc.CONVERGENCE_PAIRS) + len(nmpc.GUESS_PAIRS))
     for v in report["verdicts"]:
         assert v["verdicts"] == nmpc.verdicts(v["paired"])
+
+
+@pytest.mark.skipif(not (ROOT / nmpc.STUDY).is_file(), reason="the NMPC initial-guess study is not generated")
+def test_committed_study_counts_every_state_and_every_converged_plan():
+    """Shares of all states (a failure is not at the lowest optimum); every converged plan certified or listed."""
+    study = json.loads((ROOT / nmpc.STUDY).read_text())
+    guesses = ("constant_velocity", "shifted_previous", "policy_rollout")
+    for g in study["per_guess"].values():
+        assert g["states_at_lowest_optimum"] + g["converged_not_at_lowest_optimum"] + g["failures"] == g["states"]
+        assert g["share_of_states_at_lowest_optimum"] == pytest.approx(g["states_at_lowest_optimum"] / g["states"])
+    converged = sum(study["per_guess"][g]["states"] - study["per_guess"][g]["failures"] for g in guesses)
+    certification = study["kkt_certification_by_ipopt"]
+    total = certification["all_guesses"]
+    assert total["converged_plans"] == converged == study["kkt_residual"]["converged_plans"]
+    assert total["certified"] + total["not_certified"] == converged
+    assert len(certification["not_certified"]) == total["not_certified"] == len(
+        study["kkt_residual"]["error_not_certified"])
+    agreement = study["agreement_with_ipopt"]["all_guesses"]
+    assert (agreement["agree"] + agreement["different_local_optima"] + agreement["disagree_nmpc_not_certified"]
+            == agreement["both_converged"])
+    assert agreement["nmpc_lower"] + agreement["ipopt_lower"] == agreement["different_local_optima"]

@@ -1,5 +1,6 @@
-"""The paper's operating point: the common slack-price scale, the frozen planner option and the
-calibration script (pipelines/operating_point_calibration.py) on a 2-episode probe."""
+"""The paper's operating point: the common slack-price scale, the frozen option and the declared rule's probe,
+the calibration script (pipelines/operating_point_calibration.py) on a 2-episode probe, how it tells the choice and
+names probes in its figure, and the reproduction table (pipelines/operating_point.py) at both options."""
 
 import sys
 from pathlib import Path
@@ -33,18 +34,57 @@ def test_slack_price_scale_outside_its_range_is_one_line_naming_the_key(value):
     assert "(0, 1]" in str(error.value)
 
 
-def test_the_frozen_option_lists_only_what_differs_from_ltv_mpc():
-    path = CONFIG_DIR / "planner" / "paper_operating_point.yaml"
-    option = yaml.safe_load(path.read_text())
-    assert option["defaults"] == ["ltv_mpc", "_self_"]
+@pytest.mark.parametrize(("option", "key"), [("paper_operating_point", "frozen"),
+                                           ("declared_rule_probe", "declared_rule_option")])
+def test_each_option_lists_only_what_differs_from_ltv_mpc(option, key):
+    path = CONFIG_DIR / "planner" / f"{option}.yaml"
+    values = yaml.safe_load(path.read_text())
+    assert values["defaults"] == ["ltv_mpc", "_self_"]
     ltv_mpc = compose_config(["planner=ltv_mpc"]).planner  # the OCP's defaults (ltv_mpc.yaml repeats none)
-    for key, value in option.items():
-        if key != "defaults":
-            assert list(ltv_mpc[key]) != value if isinstance(value, list) else ltv_mpc[key] != value, key
-    assert 1 <= len(option) - 1 <= 3  # at most three knobs
+    for name, value in values.items():
+        if name != "defaults":
+            assert list(ltv_mpc[name]) != value if isinstance(value, list) else ltv_mpc[name] != value, name
+    assert 1 <= len(values) - 1 <= 3  # at most three knobs
     spec = yaml.safe_load(calibration.PROBES.read_text())
-    assert spec["frozen"] == "paper_operating_point"
-    assert spec["frozen_probe"] in [p["name"] for p in spec["probes"]]
+    assert spec[key] == option
+    probe = spec["frozen_probe" if key == "frozen" else "declared_rule_probe"]
+    assert probe in [p["name"] for p in spec["probes"]]
+
+
+def test_the_declared_rule_probe_is_s0_01_wv2_m1_and_the_history_names_its_commits():
+    spec = yaml.safe_load(calibration.PROBES.read_text())
+    assert spec["declared_rule_probe"] == "s0.01_wv2_m1"
+    overrides = next(p["overrides"] for p in spec["probes"] if p["name"] == "s0.01_wv2_m1")
+    option = compose_config(["planner=declared_rule_probe"]).planner
+    assert compose_config(overrides).planner == option
+    rules = [entry["rule"] for entry in spec["selection"]]
+    assert {"declared", "used", "predictions"} <= set(rules)
+    assert rules.index("declared") < rules.index("used")
+    assert all(len(str(e["commit"])) == 7 for e in spec["selection"] if e["commit"])
+
+
+def _rows(*probes: tuple[str, float, float]) -> pd.DataFrame:
+    rows = pd.DataFrame(probes, columns=["probe", "mean_event_cost", "mean_vx"])
+    rows["episodes"] = 50
+    rows["distance_to_target"] = [max(abs(j - calibration.TARGET_J_C) / calibration.BAND_J_C,
+                                      abs(v - calibration.TARGET_VX) / calibration.BAND_VX) for _, j, v in probes]
+    return rows
+
+
+def test_the_declared_rule_and_the_rules_used_select_their_probes():
+    rows = _rows(("near", 0.76, 23.46), ("banded_fast", 0.67, 23.45), ("banded_slow", 0.60, 22.8),
+                 ("far", 0.2, 21.0))
+    chosen = calibration.selections(rows)
+    assert list(chosen.values()) == ["near", "banded_fast", "banded_fast"]
+    assert list(chosen)[0].startswith("declared")
+
+
+def test_the_figure_names_only_the_options_the_band_and_what_the_history_names():
+    rows = _rows(("frozen", 0.66, 23.4), ("declared", 0.72, 23.4), ("in_band", 0.6, 22.8), ("told", 0.9, 24.0),
+                 ("told_100ep", 0.2, 21.0), ("other", 0.3, 22.0))
+    spec = {"frozen_probe": "frozen", "declared_rule_probe": "declared",
+            "selection": [{"commit": None, "time": "t", "rule": "used", "text": "told was fast."}]}
+    assert calibration.labelled_probes(rows, spec) == ["frozen", "declared", "in_band", "told"]
 
 
 def test_calibration_script_on_a_two_episode_probe(tmp_path):
@@ -57,11 +97,14 @@ def test_calibration_script_on_a_two_episode_probe(tmp_path):
     rows = pd.read_csv(tmp_path / "out" / "calibration.csv")
     assert list(rows["probe"]) == ["tiny"] and rows.loc[0, "episodes"] == 2
     assert rows.loc[0, "slack_price_scale"] == 0.5 and rows.loc[0, "first_seed"] == 200000
-    for key in ("mean_event_cost", "mean_vx", "mean_n_steps", "mean_return_per_step", "cost_rate"):
+    for key in ("mean_event_cost", "mean_vx", "mean_n_steps", "return_per_step", "cost_rate"):
         assert rows.loc[0, f"{key}_ci95_low"] <= rows.loc[0, key] <= rows.loc[0, f"{key}_ci95_high"]
-    assert "| tiny | 2 | 0.5 |" in (tmp_path / "out" / "calibration.md").read_text()
-    assert (tmp_path / "calibration.png").stat().st_size > 0
     episodes = pd.read_csv(tmp_path / "out" / "probes" / "tiny" / "episodes.csv")
+    assert rows.loc[0, "return_per_step"] == pytest.approx(episodes["episode_return"].mean()
+                                                           / episodes["n_steps"].mean(), rel=1e-5)
+    text = (tmp_path / "out" / "calibration.md").read_text()
+    assert "| tiny | 2 | 0.5 |" in text and "unnamed there: `tiny`" in text
+    assert (tmp_path / "calibration.png").stat().st_size > 0
     assert list(episodes["seed"]) == [200000, 200001]
 
 
@@ -77,28 +120,43 @@ def test_calibration_refuses_the_table_seeds_and_large_probes(tmp_path, spec, fr
         calibration.read_probes(probes)
 
 
-def test_reproduction_table_gives_verdicts_claims_and_what_was_fitted(tmp_path, monkeypatch):
+@pytest.mark.parametrize(("interval", "expected"), [
+    ((0.58, 0.67), "within the band"), ((0.552, 0.613), "not shown within the band"),
+    ((0.50, 0.57), "outside the band"), ((0.68, 0.75), "outside the band"), ((0.5, 0.7), "not shown within the band")])
+def test_band_verdict_follows_the_ci(interval, expected):
+    assert operating_point.band_verdict(0.625, 0.05, interval) == expected
+
+
+def test_reproduction_table_at_both_options(tmp_path, monkeypatch):
     """pipelines/operating_point.py on hand-made evaluations (tests/test_tradeoff.py's writer)."""
     import json
 
     from omegaconf import OmegaConf
 
-    planner = OmegaConf.to_container(compose_config(["planner=paper_operating_point"]).planner, resolve=True)
-    twin, sweep = tmp_path / "twin", tmp_path / "tradeoff"
+    twin, sweep, declared = tmp_path / "twin", tmp_path / "tradeoff", tmp_path / "declared"
 
-    def at_the_operating_point(directory: Path, *args, **kwargs) -> None:
-        write_evaluation(directory, *args, **kwargs)
-        config = yaml.safe_load((directory / "config.yaml").read_text())
-        (directory / "config.yaml").write_text(yaml.safe_dump({**config, "planner": planner}))
+    def at(option: str):
+        planner = OmegaConf.to_container(compose_config([f"planner={option}"]).planner, resolve=True)
 
+        def write(directory: Path, *args, **kwargs) -> None:
+            write_evaluation(directory, *args, **kwargs)
+            config = yaml.safe_load((directory / "config.yaml").read_text())
+            (directory / "config.yaml").write_text(yaml.safe_dump({**config, "planner": planner}))
+        return write
+
+    frozen, rule = at("paper_operating_point"), at("declared_rule_probe")
     for traffic in ("light", "dense"):  # SRMPC safer and faster than both, PPO-L-SI the most crashes
         write_evaluation(twin / f"ppo_lsi_{traffic}", "ppo_lsi", traffic, 8, 23.0, 80)
         write_evaluation(twin / f"ltv_mpc_{traffic}", "ltv_mpc", traffic, 8, 21.0, 8)  # the default planner's
-        at_the_operating_point(sweep / f"a_{traffic}", "ltv_mpc", traffic, 1, 23.4, 120)  # names don't matter
-        at_the_operating_point(sweep / f"b_{traffic}", "srmpc", traffic, 1, 24.0, 10)
-        at_the_operating_point(sweep / f"c_{traffic}", "srmpc", traffic, 1, 24.7, 2, "track_rollout")
+        frozen(sweep / f"a_{traffic}", "ltv_mpc", traffic, 1, 23.4, 120)  # names don't matter
+        frozen(sweep / f"b_{traffic}", "srmpc", traffic, 1, 24.0, 10)
+        frozen(sweep / f"c_{traffic}", "srmpc", traffic, 1, 24.7, 2, "track_rollout")
+        rule(declared / f"d_{traffic}", "ltv_mpc", traffic, 1, 23.5, 140)
+        rule(declared / f"e_{traffic}", "srmpc", traffic, 1, 24.1, 12)
+        rule(declared / f"f_{traffic}", "srmpc", traffic, 1, 24.6, 3, "track_rollout")
     monkeypatch.setattr(operating_point, "TWIN", twin)
     monkeypatch.setattr(operating_point, "TRADEOFF", sweep)
+    monkeypatch.setattr(operating_point, "DECLARED", declared)
     monkeypatch.setattr(operating_point, "CALIBRATION", tmp_path / "none.csv")
     monkeypatch.chdir(tmp_path)
     (tmp_path / "results").mkdir()
@@ -106,12 +164,23 @@ def test_reproduction_table_gives_verdicts_claims_and_what_was_fitted(tmp_path, 
     operating_point.main()
     result = json.loads((tmp_path / "results" / "operating_point.json").read_text())
     ltv = result["light"]["ltv_mpc"]
-    assert ltv["roles"]["mean_event_cost"] == "fitted" and ltv["roles"]["mean_vx"] == "fitted"
+    assert ltv["directory"].endswith("a_light") and result["declared_rule_probe"]["light"]["ltv_mpc"][
+        "directory"].endswith("d_light")
+    assert ltv["roles"]["mean_event_cost"].startswith("calibration target")
+    assert ltv["roles"]["cost_rate"] == "follows from J_c and n_steps (rho_c = mean J_c / mean n_steps)"
+    assert ltv["roles"]["mean_n_steps"] == "predicted (first out-of-sample check)"
     assert result["dense"]["ltv_mpc"]["roles"]["mean_vx"] == "predicted"
     assert ltv["verdicts"]["mean_event_cost"] == "inside"  # the paper's 0.625 against 120 / 200 = 0.6 [0.53, 0.66]
+    assert ltv["calibration_band"]["mean_event_cost"]["verdict"] == "not shown within the band"
+    assert ltv["calibration_band"]["mean_vx"]["verdict"] == "outside the band"  # 23.4 against 24.38 +- 0.3
     assert ltv["verdicts"]["mean_vx"] == "above"  # the paper's 24.38 m/s against ours near 23.4
-    assert set(ltv["verdicts"]) == {"mean_return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps", "mean_vx"}
-    verdicts = {(c["traffic"], c["claim"].split(" (")[0]): c["verdict"] for c in result["claims"]}
-    assert verdicts[("light", "SRMPC has the lowest J_c")] == "holds"
-    assert verdicts[("light", "SRMPC's J_c and rho_c more than 65% below LTV-MPC's")] == "holds"
-    assert "Stretch" in (tmp_path / "results" / "operating_point.md").read_text()
+    assert set(ltv["verdicts"]) == {"return_per_step", "mean_event_cost", "cost_rate", "mean_n_steps", "mean_vx"}
+    assert ltv["return_per_step"] == pytest.approx(ltv["mean_return"] / ltv["mean_n_steps"])
+    for part in (result, result["declared_rule_probe"]):
+        verdicts = {(c["traffic"], c["claim"].split(" (")[0]): c["verdict"] for c in part["claims"]}
+        assert verdicts[("light", "SRMPC has the lowest J_c")] == "holds"
+        assert verdicts[("light", "SRMPC's J_c and rho_c more than 65% below LTV-MPC's")] == "holds"
+        assert sum(part["verdict_counts"].values()) == 20
+    text = (tmp_path / "results" / "operating_point.md").read_text()
+    assert "Stretch" in text and "`planner=declared_rule_probe`" in text and "post hoc" in text
+    assert " fits " not in text and "not shown within the band" in text

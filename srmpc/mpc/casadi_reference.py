@@ -36,7 +36,9 @@ WARM_START_OPTIONS = {"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-
 @dataclass
 class IpoptResult:
     """IPOPT's plan: states (N + 1, 4), inputs (N, 2), slacks s (V,), sigma (N, V), F, status text,
-    success flag, iterations, wall time of the solver call [s]."""
+    success flag, iterations, wall time of the solver call [s]; IPOPT's primal and dual infeasibility
+    (``inf_pr``, ``inf_du`` of its iteration log: unscaled constraint violation, scaled Lagrangian gradient)
+    at its last iterate."""
 
     states: np.ndarray
     inputs: np.ndarray
@@ -47,6 +49,8 @@ class IpoptResult:
     success: bool
     iterations: int
     solve_time_s: float
+    primal_infeasibility: float = float("nan")
+    dual_infeasibility: float = float("nan")
 
 
 def _ellipse_norm(px, py, other, semi_axes):
@@ -162,13 +166,16 @@ class IpoptOcp:
         stats = solver.stats()
         w = np.asarray(out["x"]).ravel()
         n_states = self._n_states
+        log = stats.get("iterations") or {}
         return IpoptResult(
             states=w[:n_states].reshape(horizon + 1, 4),
             inputs=w[n_states:n_states + 2 * horizon].reshape(horizon, 2),
             collision_slacks=w[n_states + 2 * horizon:n_states + 2 * horizon + nv],
             safety_slacks=w[n_states + 2 * horizon + nv:].reshape(horizon, nv),
             objective=float(out["f"]), status=str(stats["return_status"]), success=bool(stats["success"]),
-            iterations=int(stats["iter_count"]), solve_time_s=elapsed)
+            iterations=int(stats["iter_count"]), solve_time_s=elapsed,
+            primal_infeasibility=float(log["inf_pr"][-1]) if log.get("inf_pr") else float("nan"),
+            dual_infeasibility=float(log["inf_du"][-1]) if log.get("inf_du") else float("nan"))
 
 
 class IpoptReference:
@@ -190,119 +197,3 @@ class IpoptReference:
         return self.problem(n_observed).solve(measured_state, last_input, predicted_others, tracking_reference,
                                               initial_states, initial_inputs, initial_slacks, initial_sigmas, warm)
 
-
-HPIPM_INFINITY = 1e4
-"""CasADi's HPIPM interface boxes every variable, an infinite bound becoming +-``inf``: 1e4 (m, rad, m/s,
-rad, m/s^2, ellipse norm) is above any value of the QP (x stays below 4e3 m: 80 s at the 40 m/s speed
-bound) and keeps HPIPM converging; at CasADi's default 1e8 it stopped at its iteration limit on every QP tried."""
-HPIPM_MAX_ITERATIONS = 100
-"""HPIPM's ``iter_max`` (mode ``speed``: it converged in 22-28 iterations on the QPs tried)."""
-
-
-class HpipmQp:
-    """An ``LtvMpcQp``'s current values as a stage-wise OCP QP solved by HPIPM (CasADi's ``conic`` plugin).
-
-    HPIPM needs stage-wise costs and constraints, so the same QP is written on the augmented stages
-
-        x~_k = (x_k, u_{k-1}, s) (6 + m),   u~_k = (u_k, sigma_{k+1}) (2 + m),   k = 0..N-1,   x~_N = (x_N, u_{N-1}, s),
-        x_{k+1} = A_k x_k + B_k u_k + c_k,   u_{k-1} -> u_k,   s -> s,
-        collision row of stage k + 1 through the dynamics:
-            n^T (A_k x_k + B_k u_k)[0:3] + s_j + sigma_{k+1,j} >= h_{k+1,j} - n^T c_k[0:3],
-
-    with x_0 = x_hat and u_{-1} = u_hat as equal bounds, the rate cost ||u_k - u_{k-1}||_S^2 stage-wise and
-    the collision slacks' cost on stage 0 (m = the QP's rows in use). Same minimizer and objective value.
-    """
-
-    def __init__(self, qp) -> None:
-        config = qp.config
-        weights = config.weights
-        horizon, m = config.horizon, qp.n_observed
-        nx, nu = 6 + m, 2 + m
-        self.horizon, self.m, self.nx, self.nu = horizon, m, nx, nu
-        n = horizon * (nx + nu) + nx
-        self.n_variables = n
-        self._x_start = np.array([k * (nx + nu) for k in range(horizon + 1)])
-        self._u_start = self._x_start[:-1] + nx
-        hessian = np.zeros((n, n))
-        gradient = np.zeros(n)
-        lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
-        q, r, s = (2.0 * np.asarray(weights.state), 2.0 * np.asarray(weights.input),
-                   2.0 * np.asarray(weights.input_rate))
-        rows = []
-        row_lower, row_upper = [], []
-        for k in range(horizon + 1):
-            xs = self._x_start[k]
-            if k >= 1:
-                idx = xs + np.arange(4)
-                hessian[idx, idx] += q
-                gradient[idx] += -q * qp.tracking_reference[k]
-                lower[xs + 1], upper[xs + 1] = config.lateral_bounds_m
-                lower[xs + 3], upper[xs + 3] = config.speed_bounds_m_s
-            else:
-                lower[xs:xs + 4] = upper[xs:xs + 4] = qp.measured_state
-                lower[xs + 4:xs + 6] = upper[xs + 4:xs + 6] = qp.last_input
-                slack = xs + 6 + np.arange(m)
-                hessian[slack, slack] += 2.0 * weights.collision_slack_quadratic
-                gradient[slack] += weights.collision_slack_linear
-                lower[slack] = 0.0
-            if k == horizon:
-                continue
-            us = self._u_start[k]
-            u_idx, prev_idx = us + np.arange(2), xs + 4 + np.arange(2)
-            hessian[u_idx, u_idx] += r + s
-            hessian[prev_idx, prev_idx] += s
-            hessian[u_idx, prev_idx] -= s
-            hessian[prev_idx, u_idx] -= s
-            lower[u_idx] = [config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]]
-            upper[u_idx] = [config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]]
-            sigma = us + 2 + np.arange(m)
-            hessian[sigma, sigma] += 2.0 * weights.safety_slack_quadratic
-            gradient[sigma] += weights.safety_slack_linear
-            lower[sigma], upper[sigma] = 0.0, qp.safety_slack_upper[k, :m]
-            a_k, b_k, c_k = qp.state_matrices[k], qp.input_matrices[k], qp.affine_offsets[k]
-            nxt = self._x_start[k + 1]
-            dynamics = np.zeros((nx, n))
-            dynamics[:4, xs:xs + 4] = a_k  # HPIPM's gap rows: A x~_k + B u~_k - x~_{k+1} = -c~_k
-            dynamics[:4, us:us + 2] = b_k
-            dynamics[:4, nxt:nxt + 4] = -np.eye(4)
-            dynamics[4:6, us:us + 2] = np.eye(2)
-            dynamics[4:6, nxt + 4:nxt + 6] = -np.eye(2)
-            dynamics[6:, xs + 6:xs + 6 + m] = np.eye(m)
-            dynamics[6:, nxt + 6:nxt + 6 + m] = -np.eye(m)
-            rows.append(dynamics)
-            rhs = np.concatenate([-c_k, np.zeros(2 + m)])
-            row_lower.append(rhs)
-            row_upper.append(rhs)
-            normals = qp.collision_coefficients[k, :m]  # (m, 3) on (x, y, psi) of x_{k+1}
-            general = np.zeros((m, n))
-            general[:, xs:xs + 4] = normals @ a_k[:3]
-            general[:, us:us + 2] = normals @ b_k[:3]
-            general[:, xs + 6:xs + 6 + m] = np.eye(m)
-            general[:, sigma] = np.eye(m)
-            rows.append(general)
-            row_lower.append(qp.collision_row_lower[k, :m] - normals @ c_k[:3])
-            row_upper.append(np.full(m, np.inf))
-        constraint = np.vstack(rows)
-        self._hessian = ca.DM(ca.Sparsity.dense(n, n), hessian.ravel(order="F"))
-        self._hessian = ca.sparsify(self._hessian)
-        self._constraint = ca.sparsify(ca.DM(constraint))
-        self._gradient, self._lbx, self._ubx = gradient, lower, upper
-        self._lba, self._uba = np.concatenate(row_lower), np.concatenate(row_upper)
-        sparsity = {"h": self._hessian.sparsity(), "a": self._constraint.sparsity()}
-        self.solver = ca.conic("hpipm_srmpc", "hpipm", sparsity,
-                               {"N": horizon, "nx": [nx] * (horizon + 1), "nu": [nu] * horizon + [0],
-                                "ng": [m] * horizon + [0], "error_on_fail": False,
-                                "inf": HPIPM_INFINITY, "hpipm": {"iter_max": HPIPM_MAX_ITERATIONS, "mode": "speed"}})
-
-    def solve(self) -> tuple[np.ndarray, np.ndarray, bool, float, float, int]:
-        """(states (N + 1, 4), inputs (N, 2), success, wall time of the CasADi call [s], HPIPM's own
-        time [s] (CasADi's ``t_proc_solver``), iterations)."""
-        start = time.perf_counter()
-        out = self.solver(h=self._hessian, g=self._gradient, a=self._constraint, lbx=self._lbx, ubx=self._ubx,
-                          lba=self._lba, uba=self._uba)
-        elapsed = time.perf_counter() - start
-        z = np.asarray(out["x"]).ravel()
-        states = np.stack([z[self._x_start[k]:self._x_start[k] + 4] for k in range(self.horizon + 1)])
-        inputs = np.stack([z[self._u_start[k]:self._u_start[k] + 2] for k in range(self.horizon)])
-        stats = self.solver.stats()
-        return states, inputs, bool(stats["success"]), elapsed, float(stats["t_proc_solver"]), int(stats["iter_count"])

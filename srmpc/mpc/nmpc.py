@@ -1,4 +1,4 @@
-"""Nonlinear MPC: the LTV-MPC's OCP on the exact model, solved to a KKT tolerance by SQP.
+"""Nonlinear MPC: the LTV-MPC's OCP on the exact model, solved by SQP until a convergence test (a KKT proxy) holds.
 
 The NLP (same cost, bounds and horizon as the LTV-MPC's QP, ``ocp.py``; no linearization)::
 
@@ -28,13 +28,16 @@ SQP (Gauss-Newton Hessian, l1 merit line search):
    (with their cost in F and in the safety row) so that every QP solution is a point of the NLP.
    The QP is solved by our Riccati interior-point method (``solvers.RiccatiInteriorPointSolver``)
    and gives the step p_i = w_QP - w_i.
-2. **Convergence (KKT).** p_i = 0 solves the QP at w_i exactly when w_i is a KKT point of the
-   NLP (the QP's constraints are the NLP's linearization at w_i and the reduced Hessian is
-   positive definite), so ||p_i||_inf is the stationarity measure (the Riccati solver returns no
-   multipliers). Converged: primal infeasibility theta_inf(w) (largest dynamics defect
-   |x_{k+1} - f(x_k, u_k)| and constraint violation) <= ``primal_tolerance`` and
-   ||p_i||_inf <= ``stationarity_tolerance``, either at w_i, or at w_i + p_i when the full step
-   was taken (theta measured there, the stationarity at w_i).
+2. **Convergence test (a KKT proxy).** p_i = 0 solves the QP at w_i exactly when w_i is a KKT point
+   of the NLP (the QP's constraints are the NLP's linearization at w_i and the reduced Hessian is
+   positive definite), so ||p_i||_inf stands in for stationarity. Converged: primal infeasibility
+   theta_inf(w) (largest dynamics defect |x_{k+1} - f(x_k, u_k)| and constraint violation) <=
+   ``primal_tolerance`` and ||p_i||_inf <= ``stationarity_tolerance``, either at w_i, or at w_i + p_i
+   when the full step was taken (theta measured there, the stationarity at w_i). The test is
+   unscaled and uses no multipliers, so it certifies no KKT tolerance by itself: every result also
+   carries the NLP's KKT residual with the last QP's multipliers (``nmpc_kkt``: stationarity of the
+   Lagrangian, complementarity, primal infeasibility, and IPOPT's scaled error E), reported beside
+   the test and not used by it (the closed-loop evaluations ran with this test).
 3. **Merit line search.** phi_nu(w) = F(w) + nu theta_1(w), theta_1 the l1 norm of the defects and
    violations. Its directional derivative along p is D = grad F^T p - nu theta_1(w) (the QP step
    satisfies the linearized constraints). nu is raised to (grad F^T p + 1/2 p^T P p) /
@@ -69,9 +72,10 @@ slacks start at the smallest values that satisfy the (exact) collision and safet
 Implementation: the whole SQP is one compiled call, ``_sqp``, steps 1-4 above in that order, on flat points
 w (``nmpc_kernels``: F, theta, screening, the subproblem's assembly, Anderson's point) and on arrays allocated
 once per solver: the QP's stage-wise arrays (``LtvMpcQp``, which keeps the last subproblem) and the Riccati
-solver's workspace and warm-start memory (``RiccatiInteriorPointSolver``; every QP starts from the previous
-one's solution shifted by one stage, across solves too, as that solver's ``solve`` starts it). Each QP is
-solved on max(rows, 1) vehicle slots instead of 2V (``nmpc_kernels.solve_subproblem``), with the same floats.
+solver's workspace (``RiccatiInteriorPointSolver`` with ``warm_start=False``: every QP starts cold, from the
+solver's own starting point; the planner's warm start shifts the last solution by one control step, while the
+QPs of one SQP solve are all at one instant). Each QP is solved on max(rows, 1) vehicle slots instead of 2V
+(``nmpc_kernels.solve_subproblem``), with the same floats.
 F and theta are summed in numpy's order and Anderson's least squares is numpy's LAPACK call, so every
 decision and iterate equals that of the numpy implementation of earlier revisions, bit for bit
 (``tests/mpc/test_nmpc.py`` tests the pieces; all 900 solves of ``benchmarks/nmpc_initial_guess.py``'s states
@@ -106,6 +110,7 @@ from srmpc.mpc.nmpc_kernels import (
     screen,
     solve_subproblem,
 )
+from srmpc.mpc.nmpc_kkt import KktResidual, kkt_residuals, scaled_residual
 from srmpc.mpc.nonlinear_constraints import vehicle_frames
 from srmpc.mpc.ocp import OcpConfig
 from srmpc.mpc.qp_builder import LtvMpcQp
@@ -176,7 +181,9 @@ class NmpcResult:
         step_norms: ||p||_inf of each QP step (the stationarity measure per iteration).
         qp_rows: vehicle rows (collision + safety) in each QP after screening.
         accelerated_steps: iterations that took the Anderson point instead of the full SQP step.
-        solve_time_s: wall time of the whole solve [s].
+        solve_time_s: wall time of the whole solve [s] (the SQP; not the KKT residual's evaluation).
+        kkt: the NLP's KKT residual at the plan with the last QP's multipliers (``nmpc_kkt``; NaN residuals
+            when the last QP failed); a diagnostic beside the convergence test, not part of it.
     """
 
     states: np.ndarray
@@ -197,6 +204,7 @@ class NmpcResult:
     qp_rows: list[int] = field(default_factory=list)
     accelerated_steps: int = 0
     solve_time_s: float = 0.0
+    kkt: KktResidual | None = None
 
     @property
     def converged(self) -> bool:
@@ -500,9 +508,11 @@ class NmpcSolver:
          accelerated_steps) = _sqp(
             others, n_obs, initial_states, initial_inputs, self.nlp, self._sqp_settings, self._subproblem,
             self._qp_settings, self.qp_solver.workspace, self.qp_solver.memory, self._compact, self._scratch, record, w)
+        elapsed = time.perf_counter() - start
         if iterations:
             qp.n_observed = int(record.qp_rows[iterations - 1])
             qp._sparse_values_stale = True  # the stage-wise arrays changed (as after ``LtvMpcQp.update``)
+        kkt = self._kkt_residual(w, n_obs, others, status, iterations, theta_inf)
         point = self._point(w, n_obs)
         steps = iterations - (status == _QP_FAILED)
         return NmpcResult(
@@ -513,7 +523,21 @@ class NmpcSolver:
             qp_iterations=record.qp_iterations[:iterations].tolist(),
             step_lengths=record.step_lengths[:line_searches].tolist(),
             step_norms=record.step_norms[:steps].tolist(), qp_rows=record.qp_rows[:iterations].tolist(),
-            accelerated_steps=int(accelerated_steps), solve_time_s=time.perf_counter() - start)
+            accelerated_steps=int(accelerated_steps), solve_time_s=elapsed, kkt=kkt)
+
+    def _kkt_residual(self, w: np.ndarray, n_obs: int, others: np.ndarray, status: int, iterations: int,
+                      theta_inf: float) -> KktResidual:
+        """``nmpc_kkt``'s residual at the plan w with the multipliers of the last QP (still in the Riccati solver's
+        workspace; read only, so the next solve is unchanged)."""
+        if status == _QP_FAILED or not iterations:
+            return KktResidual.unavailable(theta_inf)
+        subproblem = self._subproblem
+        residuals = kkt_residuals(w, n_obs, subproblem.last_input, subproblem.tracking_reference, self._frames(others),
+                                  self.nlp, self.qp_solver.workspace, int(self._record.qp_rows[iterations - 1]),
+                                  subproblem.sigma_upper, subproblem.collision_rows, subproblem.safety_rows)
+        stationarity, complementarity, multiplier_norm, inequality_norm, n_equalities, n_inequalities = residuals
+        return scaled_residual(stationarity, complementarity, theta_inf, multiplier_norm, inequality_norm,
+                               n_equalities, n_inequalities)
 
 
-__all__ = ["NmpcResult", "NmpcSettings", "NmpcSolver", "SAFETY_SLACK_UPPER"]
+__all__ = ["KktResidual", "NmpcResult", "NmpcSettings", "NmpcSolver", "SAFETY_SLACK_UPPER"]

@@ -314,6 +314,16 @@ def initial_point(measured_state, frames, n_obs, initial_states, initial_inputs,
 
 
 @numba.njit(cache=True, error_model="numpy")
+def linearize_dynamics(states, inputs, model, next_states, state_matrices, input_matrices, affine_offsets):
+    """f(x_k, u_k), A_k = df/dx, B_k = df/du and c_k at the states (N + 1, 4) and inputs (N, 2) of a point, into the
+    (N, 4), (N, 4, 4), (N, 4, 2), (N, 4) arrays; ``model`` is ``NlpConstants.model`` (``linearize_subproblem``'s
+    Jacobians, the same floats)."""
+    h, n_substeps, half_length, v_max, v_min = model
+    _linearize_horizon(states, inputs, h, n_substeps, half_length, v_max, v_min, next_states, state_matrices,
+                       input_matrices, affine_offsets)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def screen(w, horizon, n_obs, frames, constants, scratch, collision_rows, safety_rows):
     """The vehicles whose collision / safety rows enter the QP at w (module doc, screening) into the row
     index arrays; returns their counts."""
@@ -541,6 +551,17 @@ def expand_memory(compact, memory):
             for group in range(3):
                 memory.z[full_groups[group] + k * n_full + j] = compact.z[groups[group] + k * n_slots + j]
     memory.z[full_boxes:full_m] = compact.z[boxes:m]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def subproblem_multipliers(workspace, n_rows):
+    """The inequality multipliers z (m,) of the last QP that ``solve_subproblem`` solved with n_rows vehicle rows
+    (a view into ``workspace``), and the starts of its inequality groups (``riccati_interior_point``'s layout on
+    max(n_rows, 1) slots: rows, slack lower, sigma lower, sigma upper, y lower, y upper, v lower, v upper, input
+    lower, input upper, then m)."""
+    n_slots = max(n_rows, 1)
+    offsets = _offsets(workspace[0].inputs.shape[0], n_slots)
+    return _leading(workspace[1].z, offsets[10]), offsets
 
 
 @numba.njit(cache=True, error_model="numpy")
