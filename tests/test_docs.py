@@ -257,8 +257,32 @@ def test_readme_headline_table_is_results_table_json():
         f"{diff}\n\nExpected block:\n{TABLE_BEGIN}\n{expected}\n{TABLE_END}")
 
 
-def test_readme_fits_in_200_lines():
-    assert len(README.read_text().splitlines()) <= 200
+README_MAX_LINES = 200
+README_MAX_PROSE_WIDTH = 120
+"""The README's caps: lines, and characters per prose line (table rows and fenced code are not prose)."""
+
+
+def prose_lines(text: str) -> list[tuple[int, str]]:
+    """(line number, line) of ``text`` outside fenced code blocks and table rows."""
+    lines, fenced = [], False
+    for number, line in enumerate(text.splitlines(), start=1):
+        if line.startswith("```"):
+            fenced = not fenced
+        elif not fenced and not line.startswith("|"):
+            lines.append((number, line))
+    return lines
+
+
+def test_readme_fits_in_200_lines_of_prose_at_most_120_wide():
+    text = README.read_text()
+    assert len(text.splitlines()) <= README_MAX_LINES
+    wide = [f"line {n}: {len(line)} characters" for n, line in prose_lines(text) if len(line) > README_MAX_PROSE_WIDTH]
+    assert not wide, f"README.md prose lines over {README_MAX_PROSE_WIDTH} characters: {wide}"
+
+
+def test_prose_lines_skip_tables_and_fenced_code():
+    text = "a\n| t | t |\n```\n" + "x" * 200 + "\n```\nb"
+    assert prose_lines(text) == [(1, "a"), (6, "b")]
 
 
 @pytest.mark.parametrize("path", DOCS, ids=lambda p: p.relative_to(ROOT).as_posix())
