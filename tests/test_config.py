@@ -3,9 +3,13 @@
 import re
 import subprocess
 import sys
+from enum import Enum
 from pathlib import Path
+from typing import Any
 
 import pytest
+import yaml
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from srmpc.config.compose import CONFIG_DIR, ConfigError, compose_config, to_objects
 from srmpc.config.schema import Config
@@ -13,6 +17,64 @@ from srmpc.scenario.parameters import ScenarioParameters
 
 EXPERIMENTS = sorted(p.relative_to(CONFIG_DIR / "experiment").with_suffix("").as_posix()
                      for p in (CONFIG_DIR / "experiment").rglob("*.yaml"))
+GROUPS = ("scenario", "agent", "planner", "srmpc", "evaluation", "tracking")
+
+
+def _flat(values: dict, prefix: str = "") -> dict[str, Any]:
+    """{"a": {"b": 1}} -> {"a.b": 1}; lists and null are leaves."""
+    flat = {}
+    for key, value in values.items():
+        if isinstance(value, dict):
+            flat |= _flat(value, f"{prefix}{key}.")
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def file_values(path: Path, group: str | None = None) -> dict[str, Any]:
+    """What the conf/ file ``path`` sets, read from its YAML alone (not through Hydra): {dotted key: value},
+    its defaults list first (``/experiment/<name>``, ``override /<group>: <option>``, a same-group option),
+    then its own values. ``group``: the group the file is an option of (None: an experiment, @package _global_)."""
+    data = yaml.safe_load(path.read_text()) or {}
+    values: dict[str, Any] = {}
+    for entry in data.pop("defaults", []):
+        if entry == "_self_":
+            continue
+        if isinstance(entry, str) and entry.startswith("/experiment/"):
+            values |= file_values(CONFIG_DIR / f"{entry[1:]}.yaml")
+        elif isinstance(entry, str):  # another option of the same group
+            values |= file_values(path.with_name(f"{entry}.yaml"), group)
+        else:
+            ((key, option),) = entry.items()
+            other = key.removeprefix("override ").strip("/")
+            values |= file_values(CONFIG_DIR / other / f"{option}.yaml", other)
+    return values | _flat(data, f"{group}." if group else "")
+
+
+def plain(value: Any) -> Any:
+    """A composed or typed value as YAML writes it: enums by value, tuples and ListConfigs as lists."""
+    if isinstance(value, Enum):
+        return value.value
+    if isinstance(value, DictConfig | ListConfig):
+        value = OmegaConf.to_container(value, resolve=True)
+    if isinstance(value, list | tuple):
+        return [plain(v) for v in value]
+    return value
+
+
+def attribute(obj: Any, key: str) -> Any:
+    for name in key.split("."):
+        obj = getattr(obj, name)
+    return obj
+
+
+def assert_holds(cfg: DictConfig, values: dict[str, Any], where: str) -> None:
+    """Each of ``values`` is in the composed ``cfg`` and in its typed objects, unchanged."""
+    config = to_objects(cfg)
+    assert isinstance(config, Config)
+    for key, value in values.items():
+        assert plain(OmegaConf.select(cfg, key)) == value, f"{where}: composed {key}"
+        assert plain(attribute(config, key)) == value, f"{where}: typed {key}"
 
 
 def test_the_paper_experiments_exist():
@@ -20,16 +82,42 @@ def test_the_paper_experiments_exist():
     assert {"multiplier_ablation/ppo_lsi", "multiplier_ablation/ppo"} <= set(EXPERIMENTS)
 
 
+def test_file_values_reads_defaults_then_own_values():
+    """The reader the two tests below check the composition against, on files whose values are written here."""
+    assert file_values(CONFIG_DIR / "experiment" / "confirmation" / "srmpc_recommended.yaml") == {
+        "srmpc.variant": "track_rollout", "srmpc.tracking": "policy_rollout", "evaluation.controller": "srmpc",
+        "planner.safety_margin_longitudinal_m": 1.0, "evaluation.seed": 100000}
+    assert file_values(CONFIG_DIR / "planner" / "paper_operating_point.yaml", "planner") == {
+        "planner.slack_price_scale": 0.05, "planner.state_weights": [0.0, 0.5, 20.0, 10.0],
+        "planner.safety_margin_longitudinal_m": 1.0}
+
+
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
-def test_every_experiment_composes_into_the_schema(experiment):
-    config = to_objects(compose_config([f"+experiment={experiment}"]))
-    assert isinstance(config, Config) and isinstance(config.scenario, ScenarioParameters)
+def test_every_experiment_composes_into_the_schema_with_the_values_its_file_sets(experiment):
+    """Every value the experiment file sets (through its defaults list too: included experiments, group
+    options) is in the composed config and in its typed objects; a group it names nothing of is the default's."""
+    cfg = compose_config([f"+experiment={experiment}"])
+    values = file_values(CONFIG_DIR / "experiment" / f"{experiment}.yaml")
+    assert values, experiment
+    assert_holds(cfg, values, experiment)
+    assert isinstance(to_objects(cfg).scenario, ScenarioParameters)
+    groups = {key.split(".")[0] for key in values}
+    base = compose_config([])
+    for group in GROUPS:
+        if group not in groups:
+            assert cfg[group] == base[group], f"{experiment} changed {group}, which its file does not name"
 
 
-@pytest.mark.parametrize("group", ["scenario", "agent", "planner", "srmpc", "evaluation", "tracking"])
-def test_every_group_option_composes(group):
+@pytest.mark.parametrize("group", GROUPS)
+def test_every_group_option_composes_to_its_values_and_changes_only_its_group(group):
+    base = compose_config([])
     for option in sorted(p.stem for p in (CONFIG_DIR / group).glob("*.yaml")):
-        to_objects(compose_config([f"{group}={option}"]))
+        cfg = compose_config([f"{group}={option}"])
+        values = file_values(CONFIG_DIR / group / f"{option}.yaml", group)
+        assert_holds(cfg, values, f"{group}={option}")
+        for other in GROUPS:
+            if other != group:
+                assert cfg[other] == base[other], f"{group}={option} changed {other}"
 
 
 def test_dense_traffic_differs_from_light_only_in_traffic():
@@ -105,16 +193,15 @@ def test_values_the_issue_names_are_refused(override, fragment):
 
 def test_every_committed_config_still_validates():
     """Validation only narrowed what is accepted: every config a committed result was made with passes."""
-    import yaml
-    from omegaconf import OmegaConf
-
     paths = sorted((CONFIG_DIR.parent / "results").rglob("config.yaml"))
-    assert paths
+    assert len(paths) >= 100  # the evaluation and training folders of results/, not a few
     for path in paths:
         stored = yaml.safe_load(path.read_text())
         stored.pop("policy_sha256", None)
         stored.pop("implementation", None)  # stage=train_sb3 records its library beside the config
-        to_objects(OmegaConf.merge(OmegaConf.structured(Config), stored))
+        config = to_objects(OmegaConf.merge(OmegaConf.structured(Config), stored))
+        for key, value in _flat(stored).items():  # validated, the result's config is the one it was made with
+            assert plain(attribute(config, key)) == value, f"{path.relative_to(CONFIG_DIR.parent)}: {key}"
 
 
 @pytest.mark.parametrize(

@@ -183,12 +183,19 @@ def test_every_leaf_declares_what_it_accepts():
 
 
 def test_defaults_and_edge_values_the_runs_use_stay_valid():
+    """Accepted, and kept as given: the composed config and its typed objects hold the override's value."""
     for override in ["agent.cost_gamma=0", "agent.multiplier_lr_final=null", "agent.multiplier_max_grad_norm=null",
                      "agent.seed=0", "evaluation.seed=0", "agent.entropy_coef=0", "agent.cost_threshold=0",
                      "scenario.vehicles_behind_ego=0", "srmpc.relinearizations=0", "agent.gamma=1",
                      "agent.multiplier_lr_final=1e-6", "agent.multiplier_max_grad_norm=3", "planner.max_vehicles=6",
                      "scenario.safety_index.edge_d_min_m=0", "scenario.reward.speed_weight=1"]:
-        compose_config([override])
+        parsed = PARSER.parse_overrides([override])[0]
+        key, value = parsed.key_or_group, parsed.value()
+        cfg = compose_config([override])
+        typed = to_objects(cfg)
+        for name in key.split("."):
+            typed = getattr(typed, name)
+        assert OmegaConf.select(cfg, key) == value and typed == value, (override, OmegaConf.select(cfg, key), typed)
 
 
 @pytest.mark.parametrize("leaf", LEAVES, ids=IDS)

@@ -307,19 +307,32 @@ def test_the_checkers_catch_broken_input(tmp_path):
     (tmp_path / "there.md").write_text("x")
     page = "[ok](there.md#a) [web](https://example.org) [gone](missing.md) ![fig](nope.png)\n```bash\n[x](y)\n```"
     assert broken_links(page, tmp_path) == ["missing.md", "nope.png"]
-    assert command_problems(".venv/bin/python pipelines/no_such_script.py --x")
-    assert command_problems("make no-such-target")
-    assert command_problems("dvc repro no_such_stage")
-    assert command_problems(".venv/bin/python -m srmpc +experiment=no_such_experiment")
-    assert command_problems(".venv/bin/python -m srmpc -m planner=ltv_mpc,no_such_planner")
-    assert command_problems(".venv/bin/python -m srmpc evaluation.episodes=0")
+    srmpc = ".venv/bin/python -m srmpc"
+    says = {  # each broken command: one problem, naming the command and what it names that is not there
+        ".venv/bin/python pipelines/no_such_script.py --x": "no script pipelines/no_such_script.py",
+        "make no-such-target": "no Makefile target 'no-such-target'",
+        "dvc repro no_such_stage": "no dvc.yaml stage 'no_such_stage'",
+        f"{srmpc} +experiment=no_such_experiment": "no option 'no_such_experiment' in group 'experiment'",
+        f"{srmpc} -m planner=ltv_mpc,no_such_planner": "no option 'no_such_planner' in group 'planner'",
+        f"{srmpc} evaluation.episodes=0": "evaluation.episodes=0: must be an integer >= 1",
+    }
+    for command, problem in says.items():
+        (found,) = command_problems(command)
+        assert found.startswith(f"{command}: ") and problem in found, (command, found)
     assert not command_problems("export X=$(.venv/bin/python -m srmpc --cfg job) && make test FORCE=1")
 
 
 def test_the_table_generator_follows_table_json():
+    """One number of table.json changed: the table changes in that cell only (SRMPC's row, J_c light)."""
     table = json.loads((ROOT / "results" / "table.json").read_text())
     table["light"]["srmpc"]["mean_event_cost"] = 0.5
-    assert headline_table(table, (ROOT / "results" / "table.md").read_text()) != expected_table_block()
+    before = expected_table_block().splitlines()
+    after = headline_table(table, (ROOT / "results" / "table.md").read_text()).splitlines()
+    changed = [i for i, (old, new) in enumerate(zip(before, after, strict=True)) if old != new]
+    assert len(changed) == 1 and before[changed[0]].startswith(f"| {LABELS['srmpc']} |"), changed
+    old_cells, new_cells = (line.strip("|").split("|") for line in (before[changed[0]], after[changed[0]]))
+    assert new_cells[1].strip() == _ci(0.5, table["light"]["srmpc"]["mean_event_cost_ci95"], 3)  # J_c light
+    assert new_cells[:1] + new_cells[2:] == old_cells[:1] + old_cells[2:]
 
 
 def test_bash_blocks_split_into_commands():

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from tensordict.nn import TensorDictModule
@@ -80,9 +82,20 @@ def test_multiplier_takes_its_steps_and_its_learning_rate_decays_to_the_final_va
     trainer.close()
     assert math.isclose(trainer.optimizers["multiplier"].param_groups[0]["lr"], 1e-4)
     stats = json.loads((tmp_path / MULTIPLIER_JSON).read_text())  # strict JSON: no NaN literals
-    assert stats["states"] > 0 and -1.0 <= stats["corr_lambda_cost_value"] <= 1.0
-    header = (tmp_path / MULTIPLIER_SAMPLES_CSV).read_text().splitlines()[0]
+    # the last batch, 16 scenes x 16 steps; the states whose 10-step look-ahead fits in it: 16 x (16 - 10 + 1)
+    assert (stats["states"], stats["horizon_steps"]) == (16 * 7, 10)
+    header, *lines = (tmp_path / MULTIPLIER_SAMPLES_CSV).read_text().splitlines()
     assert header == "lambda,cost_value,event_ahead"
+    # fewer states than the subsample's size: every state before an event first, then every state once
+    rows = np.array([[float(v) for v in line.split(",")] for line in lines])
+    before_event = round(stats["share_event_ahead"] * stats["states"])
+    assert len(rows) == before_event + stats["states"] and np.all(rows[:before_event, 2] == 1.0)
+    lam, cost_value, ahead = rows[before_event:].T  # the statistics recomputed from the states themselves
+    assert lam.mean() == pytest.approx(stats["lambda_mean"], rel=1e-12)
+    assert ahead.mean() == pytest.approx(stats["share_event_ahead"], rel=1e-12)
+    # float64 both ways, summed in another order: the largest deviation measured 6.7e-16 (the means: equal)
+    assert np.corrcoef(lam, cost_value)[0, 1] == pytest.approx(stats["corr_lambda_cost_value"], abs=1e-12)
+    assert -1.0 <= stats["corr_lambda_cost_value"] <= 1.0
 
 
 def test_multiplier_steps_are_capped_at_the_minibatches_of_an_iteration(tmp_path):
@@ -146,7 +159,7 @@ def test_designated_policy_is_a_copy_of_the_chosen_seed_with_its_hash(tmp_path):
                     "--training-dir", str(tmp_path)], check=True, capture_output=True)
     assert (tmp_path / "ppo_lsi" / "policy.pt").read_bytes() == b"policy bytes"
     designated = json.loads((tmp_path / "ppo_lsi" / "designated.json").read_text())
-    assert designated["seed"] == 0 and len(designated["sha256"]) == 64
+    assert designated["seed"] == 0 and designated["sha256"] == hashlib.sha256(b"policy bytes").hexdigest()
     missing = subprocess.run([sys.executable, str(ROOT / "pipelines/designate_policy.py"), "--agent", "ppo",
                               "--seed", "0", "--training-dir", str(tmp_path)], capture_output=True, text=True)
     assert missing.returncode != 0 and "seed_0/policy.pt" in missing.stderr and "Traceback" not in missing.stderr

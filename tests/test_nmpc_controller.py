@@ -13,15 +13,18 @@ from srmpc.sim.single_env import TwinScenarioEnv
 
 STEPS = 12
 """Control steps per episode (2.4 s): short, the NMPC takes ~10 ms a step."""
+GUESS = {"nmpc": NmpcInitialGuess.shifted_previous, "nmpc_constant_velocity": NmpcInitialGuess.constant_velocity,
+         "nmpc_rollout": NmpcInitialGuess.policy_rollout, "nmpc_best_of_two": NmpcInitialGuess.best_of_two}
+"""Where each controller's SQP starts (srmpc/config/schema.py's ControllerName documents each)."""
 
 
-@pytest.mark.parametrize("controller", ["nmpc", "nmpc_constant_velocity", "nmpc_rollout", "nmpc_best_of_two"])
+@pytest.mark.parametrize("controller", sorted(GUESS))
 def test_nmpc_controller_drives_short_dense_episodes(controller):
     config = to_objects(compose_config(["+experiment=dense_traffic", "tracking.enabled=false",
                                         f"evaluation.controller={controller}"]))
     env = TwinScenarioEnv(config.scenario)
     nmpc = build_controller(config, env)
-    assert isinstance(nmpc, NmpcController)
+    assert isinstance(nmpc, NmpcController) and nmpc.initial_guess is GUESS[controller]
     assert (policy_file(config) is None) == (controller in ("nmpc", "nmpc_constant_velocity"))
     low = np.array([-config.scenario.steering_max_rad, config.scenario.acceleration_min_mps2])
     high = np.array([config.scenario.steering_max_rad, config.scenario.acceleration_max_mps2])

@@ -157,13 +157,19 @@ def test_resume_reproduces_the_next_iterate_exactly(tmp_path, constrained):
 
 
 def test_same_seed_same_run(tmp_path):
+    """Two runs of one seed end bit for bit equal, and not because nothing trained: the two iterations moved
+    every network (the multiplier's update falls on the second, multiplier_update_every=2)."""
     hp = small()
+    initial = _params(Trainer(ToyConstrainedEnv(hp.num_envs, seed=hp.seed), hp, tmp_path / "untrained",
+                              progress=False))
     runs = []
     for name in ("x", "y"):
         trainer = Trainer(ToyConstrainedEnv(hp.num_envs, seed=hp.seed), hp, tmp_path / name, progress=False)
         trainer.train(max_iterations=2)
         runs.append(_params(trainer))
     assert all(torch.equal(runs[0][k], runs[1][k]) for k in runs[0])
+    moved = {key.split(".")[0] for key in initial if not torch.equal(initial[key], runs[0][key])}
+    assert moved == {"actor_network_params", "critic_network_params", "cost_critic_network", "multiplier_network"}
 
 
 def test_nan_stops_training_and_keeps_last_good_checkpoint(tmp_path):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import subprocess
 import sys
 from pathlib import Path
@@ -120,7 +119,13 @@ def test_stage_trains_into_its_directory_with_the_implementation_in_its_config(t
     assert "implementation: stable-baselines3==" in (out / "config.yaml").read_text()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 512 and summary["implementation"].startswith("stable-baselines3==")
-    assert math.isfinite(summary["cost_rate"])
+    rows = [{k: float(v) for k, v in row.items() if v} for row in csv.DictReader((out / "metrics.csv").open())]
+    assert [row["frames"] for row in rows] == [256.0, 512.0]
+    for row in rows:  # an event ends its episode: a batch's events are the cost returns of the episodes it ended
+        events = row["episodes"] * row["episode/cost_return"] if row["episodes"] else 0.0
+        assert row["cost_rate"] * 256 == pytest.approx(events, abs=1e-9), row  # a mean times its count: equal here
+    # the summary's window, the last 5% of the frames, is the last iteration
+    assert (summary["cost_rate"], summary["episodes"]) == (rows[-1]["cost_rate"], rows[-1]["episodes"])
     again = subprocess.run([sys.executable, "-m", "srmpc", *overrides[:-2], "agent.seed=5", f"agent.output_dir={out}",
                             f"hydra.run.dir={tmp_path / 'hydra2'}"], cwd=ROOT, capture_output=True, text=True)
     assert again.returncode == 2 and "holds results of a different config" in again.stderr

@@ -6,6 +6,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import srmpc
+from srmpc.scenario import road
 from srmpc.scenario.spawning import spawn_statistics
 from tests.conftest import build_scene, make_env
 
@@ -18,13 +19,31 @@ def test_registered_and_passes_check_env():
     np.testing.assert_allclose(env.action_space.high, [0.1, 5.0])
 
 
-def test_renders_rgb_array_frames():
+def test_renders_rgb_array_frames_of_the_scene(monkeypatch):
+    """The frame shows the scenario's road where its geometry puts it: the viewer centres the ego (yellow) at
+    ``centering_position``, so the four lane lines (y = -2, 2, 6, 10 m) are drawn ``scaling`` pixels per metre
+    above and below it, the road edges solid, the lane separators dashed; the IDM vehicles are blue."""
+    from highway_env.vehicle.graphics import VehicleGraphics
+
+    monkeypatch.delenv("SDL_VIDEODRIVER", raising=False)  # =dummy (the Dockerfile's): highway-env draws nothing
     env = gymnasium.make(srmpc.SCENARIO_ID, render_mode="rgb_array")
     env.reset(seed=1)
     env.step(np.zeros(2))
     frame = env.render()
-    assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8
-    assert frame.std() > 0  # not a blank image
+    config, ego = env.unwrapped.config, env.unwrapped.vehicle
+    height, width = config["screen_height"], config["screen_width"]
+    assert frame.shape == (height, width, 3) == (200, 800, 3) and frame.dtype == np.uint8
+    centre_column, centre_row = config["centering_position"][0] * width, config["centering_position"][1] * height
+    lines_m = [road.LEFT_ROAD_EDGE + k * road.LANE_WIDTH for k in range(road.LANE_COUNT + 1)]
+    expected_rows = [round(centre_row + (y - ego.position[1]) * config["scaling"]) for y in lines_m]
+    white = np.all(frame == 255, axis=-1).sum(axis=1)
+    assert np.nonzero(white)[0].tolist() == expected_rows  # [45, 67, 89, 111] for the ego on the right lane
+    assert white[expected_rows[0]] == white[expected_rows[-1]] == width  # the edges: solid
+    assert all(0 < white[row] < 0.8 * width for row in expected_rows[1:-1])  # the separators: dashed
+    rows, columns = np.nonzero(np.all(frame == VehicleGraphics.YELLOW, axis=-1))
+    # the ego's box, 5 m x 2 m at 5.5 px/m; its centre 2.6 px from the centring point at most (measured)
+    assert abs(columns.mean() - centre_column) < 4 and abs(rows.mean() - centre_row) < 4
+    assert np.all(frame == VehicleGraphics.BLUE, axis=-1).sum() > 200  # other vehicles
 
 
 def test_physical_action_reaches_the_vehicle_in_paper_order(env):

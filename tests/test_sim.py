@@ -125,10 +125,18 @@ def test_rollout_equals_stepping_and_leaves_the_state_alone():
 
 
 def test_rollout_from_one_scene_repeated():
+    """Three copies of one scene roll out as that scene does alone, from its own start, and leave it alone."""
     sim = TwinSimulator(PARAMS, 1, seed=9)
+    start = sim.state.vehicles.copy()
     many = sim.state.repeat(3)
+    assert many.vehicles.shape == (3, *start.shape[1:])
     result = rollout(many, sim.constants, lambda obs: np.zeros((obs.shape[0], 2)), 10)
-    np.testing.assert_array_equal(result.ego[0], result.ego[2])
+    alone = rollout(sim.snapshot(), sim.constants, lambda obs: np.zeros((obs.shape[0], 2)), 10)
+    for copy in range(3):
+        np.testing.assert_array_equal(result.ego[copy], alone.ego[0])
+    np.testing.assert_array_equal(result.ego[:, 0], np.repeat(start[:, -1], 3, axis=0))  # [x, y, heading, speed]
+    assert np.all(np.diff(result.ego[0, :, 0]) > 0)  # the ego drives on: the rollout stepped the scene
+    np.testing.assert_array_equal(sim.state.vehicles, start)
 
 
 def test_mlp_numpy_matches_torch_and_numba_path():
@@ -162,13 +170,40 @@ def test_torchrl_env_passes_check_env_specs_and_partial_reset():
     assert rollout_td["observation"].dtype == torch.float32
 
 
-def test_gym_vector_env():
-    env = TwinVectorEnv(PARAMS, num_envs=3, seed=0)
+def test_gym_vector_env_is_the_simulator_behind_gymnasiums_api():
+    """Each value gymnasium's API returns is the simulator's own (same-step autoreset): none swapped or shifted;
+    r = exp(r' / scale); a termination reason exactly where a scene terminated; the ended episode's last
+    observation in final_obs, masked by _final_obs."""
+    params = ScenarioParameters(episode_steps=20)  # 30 steps: every scene ends at least once
+    env = TwinVectorEnv(params, num_envs=3, seed=0)
+    assert env.action_space.shape == (3, 2) and env.observation_space.shape == (3, 30)
+    simulator = TwinSimulator(params, 3, seed=0, threads=1)
+    simulator.seed(1)
     observation, _ = env.reset(seed=1)
-    assert observation.shape == (3, 30) and env.action_space.shape == (3, 2)
+    np.testing.assert_array_equal(observation, simulator.reset())
+    rng = np.random.default_rng(0)
+    ended_scenes = np.zeros(3, dtype=bool)
     for _ in range(30):
-        observation, reward, terminated, truncated, info = env.step(env.action_space.sample())
-    assert reward.shape == (3,) and set(info) >= {"cost", "reward_prime", "event_cost", "vx", "termination"}
+        actions = _actions(rng, 3, 0.1)
+        observation, reward, terminated, truncated, info = env.step(actions)
+        expected = simulator.step(actions, auto_reset=True)
+        for got, value in ((observation, expected.observation), (reward, expected.reward),
+                           (terminated, expected.terminated), (truncated, expected.truncated),
+                           (info["reward_prime"], expected.reward_prime), (info["cost"], expected.cost),
+                           (info["event_cost"], expected.event_cost), (info["vx"], expected.vx)):
+            np.testing.assert_array_equal(got, value)
+        # numba's exp against NumPy's: the largest relative deviation measured 2.0e-16
+        np.testing.assert_allclose(reward, np.exp(info["reward_prime"] / params.reward.scale), rtol=1e-12)
+        assert [reason != "" for reason in info["termination"]] == terminated.tolist()
+        assert set(info["termination"]) <= {"", "collision", "offroad"}
+        ended = terminated | truncated
+        assert ("_final_obs" in info) == ended.any()
+        if ended.any():
+            np.testing.assert_array_equal(info["_final_obs"], ended)
+            np.testing.assert_array_equal(info["final_obs"][ended], expected.final_observation[ended])
+            assert np.isnan(info["final_obs"][~ended]).all()
+        ended_scenes |= ended
+    assert ended_scenes.all()
 
 
 def test_copy_rejects_lane_changing_vehicles():
