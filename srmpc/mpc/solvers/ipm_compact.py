@@ -55,7 +55,7 @@ def _leading_2d(array, rows, columns):
 def compact_workspace(workspace, n_slots):
     """Views of the leading entries of ``workspace`` (``allocate_workspace(N, V)``) shaped as
     ``allocate_workspace(N, n_slots)``'s arrays, n_slots <= V. A solve reads only what it wrote or
-    ``reset_workspace`` reset, so it solves in these views as in a fresh workspace of n_slots slots."""
+    ``prepare_inequalities`` reset, so it solves in these views as in a fresh workspace of n_slots slots."""
     point, arrays, gradients, newton, direction = workspace
     horizon = point.inputs.shape[0]
     m = inequality_offsets(horizon, n_slots)[10]

@@ -7,7 +7,7 @@ vehicle slot, per slot or per stage::
     collision rows (N V) | s >= 0 (V) | sigma >= 0 (N V) | sigma <= sigma_hi (N V)
     | y >= y_lo (N) | y <= y_hi (N) | v >= v_lo (N) | v <= v_hi (N) | u >= u_lo (2 N) | u <= u_hi (2 N)
 
-Rows of empty slots (j >= V_obs) and safety slacks whose box is closed are inactive (``active_inequalities``).
+Rows of empty slots (j >= V_obs) and safety slacks whose box is closed are inactive (``_active_inequalities``).
 A point w or a direction dw is ``Primal``; the inequalities' vectors are ``Inequalities`` on the arrays of
 ``InequalityArrays``; the objective's and the Newton model's gradients ``Gradients``; the factorized Newton
 matrix ``NewtonMatrix``. All arrays are allocated once (``allocate_workspace``); each solve resets what it reads
@@ -113,7 +113,7 @@ def constraint_values(states, inputs, slacks, sigmas, coefficients, row_lower, s
 
 
 @numba.njit(cache=True, error_model="numpy")
-def active_inequalities(sigma_upper, n_observed, offsets, active, has_sigma):
+def _active_inequalities(sigma_upper, n_observed, offsets, active, has_sigma):
     """Which inequalities exist: rows and slacks of observed slots, safety-slack boxes wider than
     ``SIGMA_BOX_MIN_WIDTH``, all state and input bounds.
 
@@ -167,7 +167,7 @@ def allocate_workspace(horizon, n_slots):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def reset_workspace(arrays, gradients, newton, direction):
+def _reset_workspace(arrays, gradients, newton, direction):
     """Give the arrays that a solve reads before writing them their allocation values (zeros;
     ones for h_sigma): a reused workspace then solves bit for bit as a fresh one."""
     for vector in (arrays.d, arrays.residuals, arrays.gamma, arrays.dt, arrays.dz, arrays.dt_aff,
@@ -202,9 +202,9 @@ def prepare_inequalities(qp, workspace):
     _, arrays, gradients, newton, direction = workspace
     horizon, n_slots = qp.coefficients.shape[0], qp.coefficients.shape[1]
     offsets = inequality_offsets(horizon, n_slots)
-    reset_workspace(arrays, gradients, newton, direction)
-    n_active = active_inequalities(qp.sigma_upper, qp.n_observed, offsets, arrays.active,
-                                   arrays.has_sigma)
+    _reset_workspace(arrays, gradients, newton, direction)
+    n_active = _active_inequalities(qp.sigma_upper, qp.n_observed, offsets, arrays.active,
+                                    arrays.has_sigma)
     return Inequalities(offsets, arrays.active, arrays.has_sigma, n_active, arrays.values,
                         arrays.t, arrays.z, arrays.d, arrays.residuals, arrays.gamma, arrays.dt,
                         arrays.dz, arrays.dt_aff, arrays.dz_aff, arrays.zero_rows,
