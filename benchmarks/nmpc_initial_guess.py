@@ -16,7 +16,7 @@ SQP with our Riccati interior-point QP solver, the table's planner OCP) is solve
 - ``best_of_two``: both of the last two, keeping the lower converged objective (AC4MPC's rule; its time
   and iterations are the sum of both solves);
 
-and IPOPT (``srmpc.mpc.casadi_reference``, exact Hessian) from the same primal point. Timed: the
+and IPOPT (``srmpc.mpc.nmpc.casadi_reference``, exact Hessian) from the same primal point. Timed: the
 NMPC's whole solve, process pinned to one core, numba on one thread, after a warm-up solve.
 
 - Agreement with IPOPT: objective within ``AGREEMENT`` (relative), first input and trajectory within
@@ -25,7 +25,7 @@ NMPC's whole solve, process pinned to one core, numba on one thread, after a war
   ``casadi_reference.WARM_START_OPTIONS``); certified when IPOPT succeeds and moves the trajectory less
   than ``AGREEMENT``'s trajectory tolerance, i.e. the plan is a KKT point of IPOPT's NLP. Where the NMPC and
   IPOPT from the same guess disagree and the plan is certified, they reached different local optima.
-- The NMPC's own KKT residual (``NmpcResult.kkt``, ``srmpc.mpc.nmpc_kkt``: stationarity, complementarity and
+- The NMPC's own KKT residual (``NmpcResult.kkt``, ``srmpc.mpc.nmpc.kkt_residual``: stationarity, complementarity and
   primal infeasibility with the last QP's multipliers, IPOPT's scaled error E), beside its convergence test:
   its distribution over the converged plans, by IPOPT's verdict.
 - The lowest optimum of a state: the lowest objective among every solver's optimum for it, the NMPC's converged
@@ -366,8 +366,8 @@ def kkt_summary(records: list[dict]) -> dict:
         "error_certified": quantiles(errors[certified]),
         "error_not_certified": not_certified_errors.tolist(),
         "rank_of_not_certified": [int((errors < e).sum()) for e in not_certified_errors],
-        "note": "E = max(r_d / s_d, r_p, r_c / s_c), IPOPT's scaled overall error (srmpc/mpc/nmpc_kkt.py) at the "
-                "returned plan with the last QP's multipliers; rank: plans with a smaller E",
+        "note": "E = max(r_d / s_d, r_p, r_c / s_c), IPOPT's scaled overall error (srmpc/mpc/nmpc/kkt_residual.py) "
+                "at the returned plan with the last QP's multipliers; rank: plans with a smaller E",
     }
 
 
@@ -436,7 +436,7 @@ def main() -> None:
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     numba.set_num_threads(1)
-    from srmpc.mpc.casadi_reference import IpoptReference
+    from srmpc.mpc.nmpc.casadi_reference import IpoptReference
 
     load_before = os.getloadavg()
     if args.load_states:

@@ -16,7 +16,7 @@ Solvers (tolerances as configured in the project unless said):
 
 - ``riccati_ipm`` / ``riccati_ipm_cold``: ours, warm (as the planner uses it) and cold, tolerance 1e-8;
   time = the whole ``solve(qp)`` call (it reads the QP's stage-wise arrays, so there is nothing to copy).
-- ``hpipm_native`` / ``_warm``: HPIPM's C API on the stage-wise OCP QP (``srmpc.mpc.hpipm_native``:
+- ``hpipm_native`` / ``_warm``: HPIPM's C API on the stage-wise OCP QP (``srmpc.mpc.solvers.hpipm_native``:
   boxes only where our QP has them, structures created once, mode SPEED with mu0 = 1, our tolerance 1e-8 on
   equalities, inequalities and complementarity, 1e-4 on stationarity (our relative test's absolute size
   with any vehicle observed), our iteration limit; warm = primal warm start from the shifted previous
@@ -27,7 +27,7 @@ Solvers (tolerances as configured in the project unless said):
   repositories outside this project with BLASFEO's TARGET=X64_INTEL_HASWELL and HPIPM's TARGET=AVX; see
   docs/benchmarks.md).
 - ``hpipm_casadi`` / ``_warm``: the same stage-wise QP through CasADi's ``hpipm`` plugin
-  (``srmpc.mpc.hpipm_reference``: every variable boxed at +-1e4 by CasADi, structures rebuilt per call);
+  (``srmpc.mpc.solvers.hpipm_reference``: every variable boxed at +-1e4 by CasADi, structures rebuilt per call);
   ``solve`` = CasADi's reported ``t_wall_solver``, ``call`` = the wall time of the CasADi call.
 - ``piqp``: PIQP's native sparse API (set up once, ``update`` values, ``solve``), eps 1e-7, KKT solver
   ``sparse_multistage`` (PIQP's own for OCP structure; ``--piqp-kkt`` to change); ``solve`` = ``solve()``,
@@ -58,14 +58,6 @@ import torch
 from srmpc.confidence_intervals import bootstrap_indices, percentile_interval
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.controller_factory import build_controller
-from srmpc.mpc.hpipm_native import (
-    HPIPM_MU0,
-    HPIPM_STATIONARITY_TOLERANCE,
-    HPIPM_TOLERANCE,
-    HpipmNativeSolver,
-    casadi_hpipm_library,
-)
-from srmpc.mpc.hpipm_reference import CASADI_INFINITY, HpipmCasadiSolver
 from srmpc.mpc.solvers import (
     NATIVE_PIQP_TOLERANCE,
     OSQP_TOLERANCE,
@@ -73,6 +65,14 @@ from srmpc.mpc.solvers import (
     RiccatiInteriorPointSolver,
     make_solver,
 )
+from srmpc.mpc.solvers.hpipm_native import (
+    HPIPM_MU0,
+    HPIPM_STATIONARITY_TOLERANCE,
+    HPIPM_TOLERANCE,
+    HpipmNativeSolver,
+    casadi_hpipm_library,
+)
+from srmpc.mpc.solvers.hpipm_reference import CASADI_INFINITY, HpipmCasadiSolver
 from srmpc.output_folder import atomic_write_text
 from srmpc.sim.single_env import TwinScenarioEnv
 

@@ -6,7 +6,7 @@ SRMPC at the same planner config; and the initial-guess study it rests on.
 Reads, at each planner config (the table's, ``planner=ltv_mpc``, and the paper's operating point,
 ``planner=paper_operating_point``) and traffic level, on the table's episodes (episode i from seed i, 1000 each):
 
-- ``results/evaluation/nmpc/``: the NMPC (``srmpc/mpc/nmpc.py``) started from constant velocity in the lane, from
+- ``results/evaluation/nmpc/``: the NMPC (``srmpc/mpc/nmpc/sqp.py``) started from constant velocity in the lane, from
   its shifted previous solution, from the policy's rollout (the paper's proposal) and from the better of the last
   two (AC4MPC's rule) (DVC stage ``evaluate_nmpc``);
 - LTV-MPC and SRMPC at the same config: ``results/evaluation/twin/`` (the table's runs) and
@@ -198,9 +198,9 @@ def certification_lines(certification: dict, kkt: dict) -> list[str]:
         error, counts = kkt["error"], kkt["plans_with_error_at_most"]
         below = ", ".join(f"{count} at most {level}" for level, count in counts.items())
         text = (f"The NMPC's own KKT residual with the last QP's multipliers (IPOPT's scaled error E; "
-                f"`srmpc/mpc/nmpc_kkt.py`), reported beside its convergence test: over the {kkt['converged_plans']} "
-                f"converged plans E median {error['median']:.1e}, p90 {error['p90']:.1e}, p99 {error['p99']:.1e}, "
-                f"max {error['max']:.1e} ({below}).")
+                f"`srmpc/mpc/nmpc/kkt_residual.py`), reported beside its convergence test: over the "
+                f"{kkt['converged_plans']} converged plans E median {error['median']:.1e}, p90 {error['p90']:.1e}, "
+                f"p99 {error['p99']:.1e}, max {error['max']:.1e} ({below}).")
         if kkt["error_not_certified"]:
             text += (" The plans IPOPT does not certify have E "
                      + ", ".join(f"{e:.1e}" for e in kkt["error_not_certified"])
@@ -213,7 +213,7 @@ def certification_lines(certification: dict, kkt: dict) -> list[str]:
 
 def markdown(result: dict) -> str:
     lines = ["# NMPC solved to convergence, from four initial guesses", "",
-             "The planner's OCP without linearization (`srmpc/mpc/nmpc.py`: SQP on the exact bicycle and ellipse "
+             "The planner's OCP without linearization (`srmpc/mpc/nmpc/sqp.py`: SQP on the exact bicycle and ellipse "
              "constraints, `riccati_ipm` subproblems, l1 merit line search; converged: NLP infeasibility <= 1e-6 and "
              "QP step <= 1e-4 within 50 iterations, a KKT proxy without multipliers; the KKT residual with "
              "multipliers and IPOPT's certification are reported below). A step whose SQP does not converge falls "

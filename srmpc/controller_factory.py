@@ -28,8 +28,8 @@ from srmpc.controllers.policy import PolicyController
 from srmpc.controllers.scenario_ocp import ocp_config
 from srmpc.controllers.srmpc import SceneSource, SrmpcController
 from srmpc.mpc.nmpc import NmpcSolver
-from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights, lane_keeping_tracking_reference
 from srmpc.mpc.planner import LtvMpcPlanner
+from srmpc.mpc.problem import CollisionGeometry, OcpConfig, TrackingWeights, lane_keeping_tracking_reference
 from srmpc.scenario import road
 from srmpc.sim.constants import SimConstants
 from srmpc.sim.mlp import MlpPolicy

@@ -5,12 +5,12 @@ from __future__ import annotations
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.config.schema import Config
 from srmpc.controller_factory import planner_ocp
-from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights
+from srmpc.mpc.problem import CollisionGeometry, OcpConfig, TrackingWeights
 from srmpc.mpc.solvers import DEFAULT_SOLVER
 
 
 def test_default_planner_builds_the_ocps_own_defaults():
-    """conf/planner/ltv_mpc.yaml and PlannerConfig repeat no number of srmpc/mpc/ocp.py: composed or
+    """conf/planner/ltv_mpc.yaml and PlannerConfig repeat no number of srmpc/mpc/problem/ocp.py: composed or
     constructed, the default planner gives OcpConfig's horizon, slots, weights and geometry."""
     for config in (Config(), to_objects(compose_config(["tracking.enabled=false"]))):
         ocp, _ = planner_ocp(config)

@@ -21,7 +21,7 @@ import yaml
 from omegaconf import OmegaConf
 
 from srmpc.config.compose import compose_config
-from srmpc.stages.train import _identity_yaml
+from srmpc.stages.train import training_identity_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 DVC_YAML = yaml.safe_load((ROOT / "dvc.yaml").read_text())
@@ -83,7 +83,8 @@ def test_each_training_directory_holds_its_runs_config(stage):
         directory = agent["output_dir"] or f"results/training/{agent['name']}/seed_{agent['seed']}"
         assert directory in outs, f"{overrides}: writes {directory}, not an output of {stage}"
         committed = yaml.safe_load((ROOT / directory / "config.yaml").read_text())
-        assert yaml.safe_load(_identity_yaml(container)) == committed, f"{overrides}: not the config of {directory}"
+        assert yaml.safe_load(training_identity_yaml(container)) == committed, (
+            f"{overrides}: not the config of {directory}")
 
 
 def test_runs_expand_per_seed_then_per_experiment_file():

@@ -18,11 +18,22 @@ Floors, from the ground up, in the order data flows through them (docs/layout.md
 9. ``__main__``: the entry point
 
 A module may import from its own room (package) and from any lower floor. Imports inside functions count.
+
+Inside ``mpc`` the same holds for its rooms, from the ground up: ``problem`` (the OCP and its QP), ``solvers``
+(the QP solvers), the planner (``planner``, ``compiled_step``: the modules at ``mpc``'s root), ``nmpc`` (the SQP
+and its references), and the package's face ``srmpc.mpc``. A module outside a room imports it through its face
+(``srmpc.mpc.problem``, not ``srmpc.mpc.problem.ocp``) and only the names the face exports (``__all__``); the
+optional modules that need ``casadi`` (``solvers.hpipm_reference``, ``nmpc.casadi_reference``) are imported by
+no other room.
+
+No module imports another module's private (underscore) name: what another module needs is public, and
+documented, in the module that owns it.
 """
 
 from __future__ import annotations
 
 import ast
+import importlib
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "srmpc"
@@ -96,3 +107,89 @@ def test_the_check_sees_an_upward_import(tmp_path):
     source.write_text("def f():\n    from srmpc.config.schema import Config\n    import srmpc.sim.idm\n")
     assert imports_of(source) == [(2, "srmpc.config.schema"), (3, "srmpc.sim.idm")]
     assert FLOOR[room_of("srmpc.config.schema")] > FLOOR["scenario"]
+
+
+MPC_FLOOR = {"problem": 0, "solvers": 1, "planner": 2, "nmpc": 3, "__init__": 4}
+"""``mpc``'s rooms from the ground up: its sub-packages, the planner (the modules at ``mpc``'s root) and its face."""
+MPC_ROOMS = ("problem", "solvers", "nmpc")
+"""The sub-packages, each with a face (``__init__`` with ``__all__``)."""
+
+
+def mpc_room_of(module: str) -> str:
+    """``srmpc.mpc.solvers.ipm_start`` -> ``solvers``; ``srmpc.mpc.compiled_step`` -> ``planner``; ``srmpc.mpc``
+    -> ``__init__``."""
+    parts = module.split(".")
+    if len(parts) == 2:
+        return "__init__"
+    return parts[2] if parts[2] in MPC_ROOMS else "planner"
+
+
+def from_imports_of(path: Path) -> list[tuple[int, str, list[str]]]:
+    """(line, srmpc module, imported names) for every ``from srmpc... import`` in ``path``."""
+    return [(node.lineno, node.module, [alias.name for alias in node.names])
+            for node in ast.walk(ast.parse(path.read_text(), filename=str(path)))
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
+            and (node.module == "srmpc" or node.module.startswith("srmpc."))]
+
+
+def module_name(path: Path) -> str:
+    parts = ("srmpc",) + path.relative_to(PACKAGE).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_mpc_rooms_import_down():
+    violations = []
+    for room, path in modules():
+        if room != "mpc":
+            continue
+        own = mpc_room_of(module_name(path))
+        for line, imported in imports_of(path):
+            if room_of(imported) != "mpc":
+                continue
+            target = mpc_room_of(imported)
+            if target != own and MPC_FLOOR[target] >= MPC_FLOOR[own]:
+                violations.append(f"{path.relative_to(PACKAGE.parent)}:{line}: mpc's {own} (floor {MPC_FLOOR[own]}) "
+                                  f"imports {imported} (floor {MPC_FLOOR[target]})")
+    assert not violations, "\n".join(violations)
+
+
+def test_mpc_rooms_are_entered_through_their_faces():
+    faces = {room: set(importlib.import_module(f"srmpc.mpc.{room}").__all__) for room in MPC_ROOMS}
+    violations = []
+    for _, path in modules():
+        own = module_name(path)
+        for line, imported, names in from_imports_of(path):
+            if room_of(imported) != "mpc" or mpc_room_of(imported) not in MPC_ROOMS:
+                continue
+            room = mpc_room_of(imported)
+            if own.startswith(f"srmpc.mpc.{room}.") or own == f"srmpc.mpc.{room}":
+                continue
+            where = f"{path.relative_to(PACKAGE.parent)}:{line}"
+            if imported != f"srmpc.mpc.{room}":
+                violations.append(f"{where} imports {imported}: enter mpc's {room} through srmpc.mpc.{room}")
+            violations += [f"{where} imports {name} from srmpc.mpc.{room}, which does not export it"
+                           for name in names if name not in faces[room]]
+    assert not violations, "\n".join(violations)
+
+
+def private_imports(path: Path) -> list[str]:
+    """``from srmpc.x import _name`` in ``path`` (a dunder is not private)."""
+    return [f"{line}: {name} from {imported}" for line, imported, names in from_imports_of(path)
+            for name in names if name.startswith("_") and not name.startswith("__")]
+
+
+def test_no_module_imports_a_private_name():
+    violations = [f"{path.relative_to(PACKAGE.parent)}:{found}" for _, path in modules()
+                  for found in private_imports(path)]
+    assert not violations, "\n".join(violations)
+
+
+def test_the_checks_see_a_private_name_and_a_face_bypass(tmp_path):
+    source = tmp_path / "m.py"
+    source.write_text("from srmpc.mpc.solvers.ipm_workspace import _Hidden, qp_tuple\n"
+                      "def f():\n    from srmpc.mpc.problem import __all__, _private\n")
+    assert private_imports(source) == ["1: _Hidden from srmpc.mpc.solvers.ipm_workspace",
+                                       "3: _private from srmpc.mpc.problem"]
+    assert [(imported, mpc_room_of(imported)) for _, imported, _ in from_imports_of(source)] == [
+        ("srmpc.mpc.solvers.ipm_workspace", "solvers"), ("srmpc.mpc.problem", "problem")]
+    assert MPC_FLOOR["problem"] < MPC_FLOOR["solvers"] < MPC_FLOOR[mpc_room_of("srmpc.mpc.planner")] < MPC_FLOOR["nmpc"]

@@ -16,9 +16,8 @@ from srmpc.controllers.ltv_mpc import LtvMpcController
 from srmpc.controllers.srmpc import OtherVehiclePrediction, ReferenceSelection, SrmpcController, SrmpcSettings
 from srmpc.episode_loop import run_episode
 from srmpc.mpc import OcpConfig
-from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
-from srmpc.mpc.ocp import lane_keeping_tracking_reference
 from srmpc.mpc.planner import LtvMpcPlanner, ReferenceSource, StepOutcome
+from srmpc.mpc.problem import lane_keeping_tracking_reference, nonlinear_plan_cost
 from srmpc.scenario import road
 from srmpc.scenario.observation import OBSERVATION_SCALE
 from srmpc.sim.single_env import TwinScenarioEnv

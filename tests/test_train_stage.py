@@ -83,13 +83,13 @@ def test_training_refuses_committed_results_of_another_config_and_writes_nothing
     from omegaconf import OmegaConf
 
     from srmpc.config.compose import ConfigError
-    from srmpc.stages.train import _identity_yaml, run_training
+    from srmpc.stages.train import run_training, training_identity_yaml
     from srmpc.tracking import Run
 
     target = tmp_path / "train"
     target.mkdir()  # a committed full training run: config.yaml, policy.pt, metrics.csv, summary.json; no last.pt
     committed = OmegaConf.to_container(compose_config(["stage=train", "agent=ppo_lsi"]), resolve=True)
-    (target / "config.yaml").write_text(_identity_yaml(committed))
+    (target / "config.yaml").write_text(training_identity_yaml(committed))
     for name in ("policy.pt", "metrics.csv", "summary.json"):
         (target / name).write_bytes(f"committed {name}\n".encode())
     before = _snapshot(target)

@@ -21,7 +21,7 @@ from srmpc.controllers.srmpc import (
     SrmpcSettings,
     TrackingTarget,
 )
-from srmpc.mpc.ocp import MAX_EGO_CIRCLES, MAX_HORIZON_STEPS, MAX_VEHICLE_SLOTS, OcpConfig
+from srmpc.mpc.problem import MAX_EGO_CIRCLES, MAX_HORIZON_STEPS, MAX_VEHICLE_SLOTS, OcpConfig
 from srmpc.mpc.solvers import DEFAULT_SOLVER
 from srmpc.scenario.observation import SLOT_COUNT
 from srmpc.scenario.parameters import ScenarioParameters
@@ -77,12 +77,12 @@ AgentConfig = PPOHyperparameters
 
 
 _OCP = OcpConfig()
-"""The OCP's own defaults (srmpc/mpc/ocp.py): the one place the planner's default numbers are written."""
+"""The OCP's own defaults (srmpc/mpc/problem/ocp.py): the one place the planner's default numbers are written."""
 
 
 @dataclass
 class PlannerConfig:
-    """LTV-MPC settings (paper section "MPC for Automated Driving"); see srmpc/mpc/ocp.py for the math.
+    """LTV-MPC settings (paper section "MPC for Automated Driving"); see srmpc/mpc/problem/ocp.py for the math.
 
     Input bounds come from the scenario's action ranges; road and speed bounds from its geometry.
     Every default is the OCP's own (``OcpConfig``, ``TrackingWeights``, ``CollisionGeometry``), so
@@ -90,7 +90,7 @@ class PlannerConfig:
     """
 
     horizon_steps: int = _OCP.horizon
-    """Prediction horizon N (25 x 0.2 s = 5 s); at most ``MAX_HORIZON_STEPS`` (srmpc/mpc/ocp.py says why)."""
+    """Prediction horizon N (25 x 0.2 s = 5 s); at most ``MAX_HORIZON_STEPS`` (srmpc/mpc/problem/ocp.py says why)."""
     solver: str = DEFAULT_SOLVER
     """QP solver: riccati_ipm (default, structure-exploiting interior point, warm-started), riccati_ipm_cold
     (the same, started cold at every step), piqp_native, osqp_native, or via qpsolvers osqp, clarabel, piqp,

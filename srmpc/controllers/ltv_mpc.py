@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from srmpc.controllers.outcomes import OUTCOME_KEYS, REFERENCE_OUTCOMES
-from srmpc.mpc.ocp import OcpConfig, lane_keeping_tracking_reference
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, StepOutcome
+from srmpc.mpc.problem import OcpConfig, lane_keeping_tracking_reference
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,7 @@ planner's own settings (horizon, observed vehicles, weights, collision geometry)
 
 from __future__ import annotations
 
-from srmpc.mpc.ocp import CollisionGeometry, OcpConfig, TrackingWeights
-from srmpc.mpc.vehicle_model import BicycleParameters
+from srmpc.mpc.problem import BicycleParameters, CollisionGeometry, OcpConfig, TrackingWeights
 from srmpc.scenario import road
 from srmpc.scenario.parameters import ScenarioParameters
 

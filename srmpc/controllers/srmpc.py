@@ -12,7 +12,7 @@ Every control step k, top to bottom in :meth:`SrmpcController.act`:
 4. if the rollout raised, produced a non-finite value, or its QP was not solved: linearize about
    the shifted previous solution instead (LTV-MPC's own reference) and solve that QP;
    with ``selection=best_of_two`` both QPs are always solved and the plan with the lower
-   nonlinear cost (``srmpc.mpc.nonlinear_cost``) is applied;
+   nonlinear cost (``srmpc.mpc.problem.nonlinear_cost``) is applied;
 5. if no QP was solved: the planner's fallback chain (shifted previous plan, emergency brake).
 
 The information boundary: the rollout runs on the full simulator state of the current scene
@@ -38,8 +38,8 @@ import numpy as np
 
 from srmpc.controllers.outcomes import OUTCOME_KEYS, POLICY_FAILED, REFERENCE_OUTCOMES
 from srmpc.mpc.compiled_step import STEP_REJECTED, STEP_ROLLOUT_FAILED, CompiledPlannerStep, status_name
-from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, ReferenceSource
+from srmpc.mpc.problem import nonlinear_plan_cost
 from srmpc.sim.constants import SimConstants
 from srmpc.sim.mlp import MlpPolicy
 from srmpc.sim.rollout import Rollout, rollout

@@ -11,7 +11,7 @@ One numba function per step runs, without returning to Python in between and in 
    along (x^r, u^r) and the linearized collision rows (``LtvMpcQp.update``'s kernels, into the QP's own
    stage-wise arrays);
 3. the solve: ``riccati_ipm`` warm-started from the shifted previous solution
-   (``interior_point_warm_start``), then the planner's acceptance test (finite, first input within its
+   (``solvers.ipm_start``), then the planner's acceptance test (finite, first input within its
    box up to ``INPUT_BOUND_TOLERANCE``) and the clip of the inputs into their box.
 
 These are the same kernels, in the same order, as the Python path (``LtvMpcPlanner.solve_about``):
@@ -34,11 +34,13 @@ from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
-from srmpc.mpc.collision import linearize_collision_constraints
-from srmpc.mpc.interior_point_warm_start import solve_in
-from srmpc.mpc.prediction import _constant_velocity_rollout
-from srmpc.mpc.riccati_interior_point import STATUS_NAMES, STATUS_SOLVED, qp_tuple
-from srmpc.mpc.vehicle_model import _linearize_horizon, _rollout
+from srmpc.mpc.problem import (
+    constant_velocity_rollout,
+    linearize_collision_constraints,
+    linearize_horizon,
+    rollout_horizon,
+)
+from srmpc.mpc.solvers import STATUS_NAMES, STATUS_SOLVED, qp_tuple, solve_in
 from srmpc.sim.rollout import copy_scene, rollout_buffers, rollout_scene_in
 
 STEP_SOLVED = 0
@@ -151,8 +153,8 @@ def _shifted_previous(arrays, constants, previous_inputs, shift):
         inputs[k, 0] = previous_inputs[source, 0]
         inputs[k, 1] = previous_inputs[source, 1]
     h, substeps, half_length, v_max, v_min = constants.model
-    _rollout(arrays.measured_state, inputs, h, substeps, half_length, v_max, v_min,
-             arrays.linearization_states)
+    rollout_horizon(arrays.measured_state, inputs, h, substeps, half_length, v_max, v_min,
+                    arrays.linearization_states)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -160,12 +162,12 @@ def _update_qp(arrays, constants, n_observed):
     """``LtvMpcQp.update``'s kernels on the step's arrays (x^r_0 := x_hat first)."""
     arrays.linearization_states[0] = arrays.measured_state
     h, substeps, half_length, v_max, v_min = constants.model
-    _linearize_horizon(arrays.linearization_states, arrays.linearization_inputs, h, substeps, half_length,
-                       v_max, v_min, arrays.next_states, arrays.state_matrices, arrays.input_matrices,
-                       arrays.affine_offsets)
+    linearize_horizon(arrays.linearization_states, arrays.linearization_inputs, h, substeps, half_length,
+                      v_max, v_min, arrays.next_states, arrays.state_matrices, arrays.input_matrices,
+                      arrays.affine_offsets)
     horizon = arrays.linearization_inputs.shape[0]
-    _constant_velocity_rollout(arrays.observed_others[:n_observed], horizon, constants.control_period_s,
-                               arrays.predicted_others)
+    constant_velocity_rollout(arrays.observed_others[:n_observed], horizon, constants.control_period_s,
+                              arrays.predicted_others)
     linearize_collision_constraints(arrays.linearization_states, arrays.predicted_others, n_observed,
                                     constants.circle_offsets, constants.collision_semi_axes,
                                     constants.safety_semi_axes, arrays.coefficients, arrays.row_lower,
@@ -283,17 +285,17 @@ class CompiledPlannerStep:
             np.zeros((n_slots, 4)), np.zeros((horizon + 1, n_slots, 4)), qp.collision_coefficients,
             qp.collision_row_lower, qp.safety_slack_upper, qp.critical_circle, np.zeros(3, dtype=np.uint64))
         self.constants = StepConstants(
-            tuple(planner.model._args), float(config.control_period_s),
+            tuple(planner.model.kernel_args), float(config.control_period_s),
             np.asarray(planner.lane_centres_m, dtype=np.float64), qp.circle_offsets,
             np.asarray(qp.collision_semi_axes, dtype=np.float64), np.asarray(qp.safety_semi_axes, dtype=np.float64),
-            planner._input_lower, planner._input_upper, float(input_tolerance), solver.constants,
+            planner.input_lower, planner.input_upper, float(input_tolerance), solver.constants,
             solver.tolerance, solver.max_iterations, solver.warm_start, tuple(solver.warm_start_settings))
         self._rollout_arrays: dict = {}
 
     def _finish(self, result: tuple, n_observed: int) -> tuple[int, int, int, bool]:
         """Mark the QP's values as changed (its sparse forms resync on access) and return the result."""
         self.qp.n_observed = n_observed
-        self.qp._sparse_values_stale = True
+        self.qp.stagewise_data_changed()
         self.solver.last_started_warm = bool(result[3])
         return int(result[0]), int(result[1]), int(result[2]), bool(result[3])
 

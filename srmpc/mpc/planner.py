@@ -24,11 +24,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from srmpc.mpc.compiled_step import STEP_REJECTED, STEP_SOLVED, CompiledPlannerStep, status_name
-from srmpc.mpc.ocp import LANE_CENTRES_M, OcpConfig, lane_keeping_tracking_reference
-from srmpc.mpc.prediction import TrafficPredictor, predict_constant_velocity
-from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.problem import (
+    INPUT_DIM,
+    LANE_CENTRES_M,
+    STATE_DIM,
+    LtvMpcQp,
+    OcpConfig,
+    TrafficPredictor,
+    lane_keeping_tracking_reference,
+    predict_constant_velocity,
+)
 from srmpc.mpc.solvers import DEFAULT_SOLVER, QpSolution, QpSolver, RiccatiInteriorPointSolver, make_solver
-from srmpc.mpc.vehicle_model import INPUT_DIM, STATE_DIM
 
 LANE_HOLD_LATERAL_GAIN_1_S = 0.6
 """Emergency lane hold: heading command per lateral error and speed, psi_cmd = -k e / v [1/s]."""
@@ -101,6 +107,9 @@ class LtvMpcPlanner:
         lane_centres_m: lane centre y positions [m] for the lane-following reference and the
             emergency lane hold.
         solver_settings: keyword settings for a solver given by name.
+
+    Attributes (besides the arguments): ``qp`` (the ``LtvMpcQp``), ``model`` (its bicycle), ``input_lower`` and
+    ``input_upper`` (the input box (delta, a) [rad, m/s^2]).
     """
 
     def __init__(
@@ -119,10 +128,10 @@ class LtvMpcPlanner:
         self.predictor = predictor
         self.lane_centres_m = tuple(lane_centres_m)
         horizon = self.config.horizon
-        self._input_lower = np.array([self.config.steering_bounds_rad[0],
-                                      self.config.acceleration_bounds_m_s2[0]])
-        self._input_upper = np.array([self.config.steering_bounds_rad[1],
-                                      self.config.acceleration_bounds_m_s2[1]])
+        self.input_lower = np.array([self.config.steering_bounds_rad[0],
+                                     self.config.acceleration_bounds_m_s2[0]])
+        self.input_upper = np.array([self.config.steering_bounds_rad[1],
+                                     self.config.acceleration_bounds_m_s2[1]])
         self._default_tracking = lane_keeping_tracking_reference(horizon)
         self._no_inputs = np.zeros((horizon, INPUT_DIM))
         self._compiled: CompiledPlannerStep | None = None
@@ -178,8 +187,8 @@ class LtvMpcPlanner:
             heading_command = -LANE_HOLD_LATERAL_GAIN_1_S * (py - lane) / max(speed, 1.0)
             heading_command = float(np.clip(heading_command, -0.3, 0.3))
             steering = -LANE_HOLD_HEADING_GAIN * (psi - heading_command)
-            braking = max(self._input_lower[1], -max(speed, 0.0) / dt)
-            inputs[k] = np.clip([steering, braking], self._input_lower, self._input_upper)
+            braking = max(self.input_lower[1], -max(speed, 0.0) / dt)
+            inputs[k] = np.clip([steering, braking], self.input_lower, self.input_upper)
             states[k + 1] = self.model.step(states[k], inputs[k])
         return states, inputs
 
@@ -330,7 +339,7 @@ class LtvMpcPlanner:
             return None
         states, inputs, collision_slacks, safety_slacks = self.qp.split_solution(solution.z)
         steering, acceleration = float(inputs[0, 0]), float(inputs[0, 1])
-        lower, upper = self._input_lower, self._input_upper
+        lower, upper = self.input_lower, self.input_upper
         if not (np.all(np.isfinite(solution.z))
                 and lower[0] - INPUT_BOUND_TOLERANCE <= steering <= upper[0] + INPUT_BOUND_TOLERANCE
                 and lower[1] - INPUT_BOUND_TOLERANCE <= acceleration

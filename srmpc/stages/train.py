@@ -7,7 +7,7 @@ Files in the output directory (``agent.output_dir``, default
 training, written at the end).
 
 A run writes only into a directory it owns: one without training results, or one whose
-``config.yaml`` has the same agent and scenario config (``_identity_yaml``, which leaves out
+``config.yaml`` has the same agent and scenario config (``training_identity_yaml``, which leaves out
 :data:`RESUMABLE_OVERRIDES`); there it resumes from ``last.pt`` or, without one, starts over. A
 directory with another config, or with results but no ``config.yaml``, is refused before anything is
 written (:func:`claim_training_dir`), so committed results are never overwritten by a smoke run.
@@ -61,7 +61,7 @@ def make_training_env(config: Config):
     return TwinHighwayEnv(config.scenario, num_envs=hp.num_envs, seed=hp.seed, threads=hp.sim_threads)
 
 
-def _identity_yaml(cfg_container: dict) -> str:
+def training_identity_yaml(cfg_container: dict) -> str:
     """The config.yaml of a training run: agent (without :data:`RESUMABLE_OVERRIDES`) and scenario."""
     agent = {k: v for k, v in cfg_container["agent"].items() if k not in RESUMABLE_OVERRIDES}
     return OmegaConf.to_yaml(recorded_config({"agent": agent, "scenario": cfg_container["scenario"]}))
@@ -89,7 +89,7 @@ def run_training(config: Config, cfg_container: dict, run: Run, progress: bool =
     from srmpc.agents.trainer import METRICS_CSV, Trainer
 
     output_dir = training_dir(config)
-    identity = _identity_yaml(cfg_container)
+    identity = training_identity_yaml(cfg_container)
     claim_training_dir(output_dir, identity)
     env = make_training_env(config)  # may still refuse the config: nothing is written before this
     try:

@@ -16,7 +16,7 @@ from srmpc.agents.report import read_metrics, summarize_training
 from srmpc.config.compose import ConfigError
 from srmpc.config.schema import Config
 from srmpc.output_folder import CONFIG_NAME, SUMMARY_NAME, atomic_write_text
-from srmpc.stages.train import _identity_yaml, claim_training_dir, training_dir
+from srmpc.stages.train import claim_training_dir, training_dir, training_identity_yaml
 from srmpc.tracking import Run
 
 
@@ -30,7 +30,7 @@ def run_sb3_training(config: Config, cfg_container: dict, run: Run) -> dict:
     if hp.task is not TrainTask.twin_highway:
         raise ConfigError(f"agent.task={hp.task.value}: stage=train_sb3 trains on the twin only (twin_highway)")
     output_dir = training_dir(config)
-    identity = _identity_yaml(cfg_container) + f"implementation: {IMPLEMENTATION}\n"
+    identity = training_identity_yaml(cfg_container) + f"implementation: {IMPLEMENTATION}\n"
     claim_training_dir(output_dir, identity)
     try:
         output_dir.mkdir(parents=True, exist_ok=True)

@@ -3,9 +3,7 @@
 import numpy as np
 import pytest
 
-from srmpc.mpc.ocp import OcpConfig, lane_keeping_tracking_reference
-from srmpc.mpc.prediction import predict_constant_velocity
-from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.problem import LtvMpcQp, OcpConfig, lane_keeping_tracking_reference, predict_constant_velocity
 
 SIX_VEHICLES = np.array([
     [30.0, 4.0, 0.0, 20.0], [-20.0, 4.0, 0.0, 25.0], [10.0, 0.0, 0.0, 24.0],

@@ -9,16 +9,14 @@ through its C API, 1.96e-6 through CasADi's plugin; 1.29e-6 far down the road) a
 import numpy as np
 import pytest
 
-from srmpc.mpc.ocp import OcpConfig, lane_keeping_tracking_reference
-from srmpc.mpc.prediction import predict_constant_velocity
-from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.problem import LtvMpcQp, OcpConfig, lane_keeping_tracking_reference, predict_constant_velocity
 from srmpc.mpc.solvers import make_solver
 
 casadi = pytest.importorskip("casadi", reason="casadi (optional extra 'nmpc') is not installed")
 
-from srmpc.mpc.hpipm_native import HpipmNativeSolver  # noqa: E402
-from srmpc.mpc.hpipm_reference import HpipmCasadiSolver  # noqa: E402
-from srmpc.mpc.hpipm_stagewise import StagewiseQp  # noqa: E402
+from srmpc.mpc.solvers.hpipm_native import HpipmNativeSolver  # noqa: E402
+from srmpc.mpc.solvers.hpipm_reference import HpipmCasadiSolver  # noqa: E402
+from srmpc.mpc.solvers.hpipm_stagewise import StagewiseQp  # noqa: E402
 
 TOLERANCE = 1e-5
 """Largest |z - z_Clarabel| accepted (m, rad, m/s, m/s^2 and slack units)."""

@@ -12,15 +12,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from srmpc.mpc.collision import collision_norms
-from srmpc.mpc.interior_point_warm_start import allocate_memory
-from srmpc.mpc.nmpc import NmpcSettings, NmpcSolver, _Point
-from srmpc.mpc.nmpc_kernels import _next_state, allocate_compact, pairwise_sum, solve_subproblem
-from srmpc.mpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms, vehicle_frames
-from srmpc.mpc.nonlinear_cost import nonlinear_plan_cost
-from srmpc.mpc.ocp import OcpConfig
-from srmpc.mpc.riccati_interior_point import allocate_workspace
-from srmpc.mpc.solvers import RiccatiInteriorPointSolver
+from srmpc.mpc.nmpc import NlpPoint, NmpcSettings, NmpcSolver
+from srmpc.mpc.nmpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms, vehicle_frames
+from srmpc.mpc.nmpc.sqp_kernels import next_state, pairwise_sum
+from srmpc.mpc.problem import OcpConfig, collision_norms, nonlinear_plan_cost
+from srmpc.mpc.solvers import (
+    RiccatiInteriorPointSolver,
+    allocate_compact,
+    allocate_memory,
+    allocate_workspace,
+    solve_compact,
+)
 
 STATES = Path(__file__).parent.parent / "data" / "nmpc_states.npz"
 
@@ -107,7 +109,7 @@ def test_nmpc_agrees_with_ipopt_from_the_same_guess(states, solver):
     """CasADi + IPOPT (exact Hessian, independent model code) reaches the same plan from the policy's rollout,
     and started at the NMPC's plan it stays there (the NMPC's plan is a KKT point of IPOPT's NLP)."""
     casadi_reference = pytest.importorskip(
-        "srmpc.mpc.casadi_reference", reason="CasADi is not installed (pip install -e '.[nmpc]')")
+        "srmpc.mpc.nmpc.casadi_reference", reason="CasADi is not installed (pip install -e '.[nmpc]')")
     reference = casadi_reference.IpoptReference(solver.config)
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = planner_inputs(states, i)
@@ -180,9 +182,9 @@ def numpy_infeasibility(solver, point, measured_state, others) -> tuple[float, f
 def random_point(rng, states, i, guess):
     """A point near recorded guess i, with boxes, dynamics and slack signs violated."""
     n, horizon = int(states["n_observed"][i]), states[f"{guess}_inputs"].shape[1]
-    return _Point(states[f"{guess}_states"][i] + rng.normal(0.0, [1.0, 0.5, 0.05, 1.0], (horizon + 1, 4)),
-                  rng.uniform([-0.2, -8.0], [0.2, 8.0], (horizon, 2)), rng.uniform(-0.2, 1.0, 2 * n),
-                  rng.uniform(-0.2, 1.0, (horizon, n)))
+    return NlpPoint(states[f"{guess}_states"][i] + rng.normal(0.0, [1.0, 0.5, 0.05, 1.0], (horizon + 1, 4)),
+                    rng.uniform([-0.2, -8.0], [0.2, 8.0], (horizon, 2)), rng.uniform(-0.2, 1.0, 2 * n),
+                    rng.uniform(-0.2, 1.0, (horizon, n)))
 
 
 @pytest.mark.parametrize("guess", ["rollout", "cv"])
@@ -239,13 +241,13 @@ def test_next_state_is_the_model_step_bit_for_bit(solver):
                           rng.uniform(1.2 * bicycle.min_speed_m_s, 1.2 * bicycle.max_speed_m_s)])
         control = rng.uniform([-0.3, -8.0], [0.3, 8.0])
         following = np.empty(4)
-        _next_state(state, control, tuple(model._args), following)
+        next_state(state, control, tuple(model.kernel_args), following)
         np.testing.assert_array_equal(following, model.step(state, control))
 
 
 @pytest.mark.parametrize("warm", [True, False])
 def test_compact_subproblem_is_the_full_qp_bit_for_bit(states, warm):
-    """The SQP solves each QP on max(rows, 1) slots (``solve_subproblem``); the same QP on all 2V slots through
+    """The SQP solves each QP on max(rows, 1) slots (``solve_compact``); the same QP on all 2V slots through
     ``RiccatiInteriorPointSolver.solve`` gives the same iterations, solution and warm-start memory, bit for bit."""
     solver = NmpcSolver(OcpConfig())
     horizon = solver.config.horizon
@@ -262,7 +264,7 @@ def test_compact_subproblem_is_the_full_qp_bit_for_bit(states, warm):
                 mine[...] = theirs
             target.valid[0] = warm
         expected = full.solve(qp)
-        status, iterations, solution = solve_subproblem(
+        status, iterations, solution = solve_compact(
             solver._subproblem, rows, qp.measured_state, solver._qp_settings._replace(warm_start=warm),
             allocate_workspace(horizon, 2 * solver.config.max_vehicles), compact_memory,
             allocate_compact(horizon, 2 * solver.config.max_vehicles))

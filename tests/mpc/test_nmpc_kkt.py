@@ -1,4 +1,4 @@
-"""The NMPC's KKT residual (``srmpc.mpc.nmpc_kkt``) on the committed closed-loop states (``test_nmpc.py``'s).
+"""The NMPC's KKT residual (``srmpc.mpc.nmpc.kkt_residual``) on the committed closed-loop states (``test_nmpc.py``'s).
 
 A residual built from wrong multipliers, signs or Jacobians would not vanish at a KKT point: these tests drive the
 SQP to tight tolerances and check that it does, and that it sees a plan moved off the KKT point along a feasible
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from srmpc.mpc.nmpc import NmpcSettings, NmpcSolver
-from srmpc.mpc.nmpc_kkt import SCALE_THRESHOLD, scaled_residual
-from srmpc.mpc.ocp import OcpConfig
+from srmpc.mpc.nmpc.kkt_residual import SCALE_THRESHOLD, scaled_residual
+from srmpc.mpc.problem import OcpConfig
 
 STATES = Path(__file__).parent.parent / "data" / "nmpc_states.npz"
 TIGHT = NmpcSettings(primal_tolerance=1e-9, stationarity_tolerance=1e-9, max_iterations=300, qp_tolerance=1e-10)

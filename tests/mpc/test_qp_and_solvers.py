@@ -3,10 +3,13 @@
 import numpy as np
 import pytest
 
-from srmpc.mpc.collision import collision_norms
-from srmpc.mpc.ocp import OcpConfig, lane_keeping_tracking_reference
-from srmpc.mpc.prediction import predict_constant_velocity
-from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.problem import (
+    LtvMpcQp,
+    OcpConfig,
+    collision_norms,
+    lane_keeping_tracking_reference,
+    predict_constant_velocity,
+)
 from srmpc.mpc.solvers import SOLVER_FACTORIES, available_solvers, make_solver
 
 

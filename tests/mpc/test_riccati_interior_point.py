@@ -5,10 +5,8 @@ import pytest
 
 from srmpc.controllers.ltv_mpc import LtvMpcController
 from srmpc.mpc import OcpConfig, StepOutcome
-from srmpc.mpc.ocp import lane_keeping_tracking_reference
 from srmpc.mpc.planner import LtvMpcPlanner
-from srmpc.mpc.prediction import predict_constant_velocity
-from srmpc.mpc.qp_builder import LtvMpcQp
+from srmpc.mpc.problem import LtvMpcQp, lane_keeping_tracking_reference, predict_constant_velocity
 from srmpc.mpc.solvers import make_solver
 from srmpc.scenario.parameters import ScenarioParameters
 from srmpc.sim.single_env import TwinScenarioEnv

@@ -10,7 +10,7 @@ import pytest
 
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.controller_factory import planner_ocp
-from srmpc.mpc.vehicle_model import KinematicBicycle
+from srmpc.mpc.problem import KinematicBicycle
 from tests.twin_scenes import ego_state, hand_built_twin
 
 

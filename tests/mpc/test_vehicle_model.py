@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from highway_env.vehicle.kinematics import Vehicle
 
-from srmpc.mpc.vehicle_model import KinematicBicycle
+from srmpc.mpc.problem import KinematicBicycle
 
 RNG = np.random.default_rng(0)
 

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from srmpc.mpc.hpipm_stagewise import StagewiseQp
+from srmpc.mpc.solvers.hpipm_stagewise import StagewiseQp
 
 HPIPM_TOLERANCE = 1e-8
 """HPIPM's exit tolerances on the equality and inequality residuals and on complementarity: our solver's

@@ -1,7 +1,7 @@
-"""The NMPC's NLP written independently in CasADi and solved by IPOPT (the reference for ``nmpc``).
+"""The NMPC's NLP written independently in CasADi and solved by IPOPT (the reference for ``sqp``).
 
-Same problem as ``nmpc``'s module doc, written from the definitions, not from our linearizations:
-the 3-sub-step explicit-Euler bicycle with highway-env's speed clipping (``vehicle_model``, as
+Same problem as ``sqp``'s module doc, written from the definitions, not from our linearizations:
+the 3-sub-step explicit-Euler bicycle with highway-env's speed clipping (``problem.vehicle_model``, as
 ``if_else``), and per stage k = 1..N, vehicle j and ego circle c the smooth constraints
 
     g_{E_kj}(p_c(x_k)) + s_j >= 1,    g_{E'_kj}(p_c(x_k)) + sigma_kj >= 1,
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from srmpc.mpc.ocp import OcpConfig
+from srmpc.mpc.problem import OcpConfig
 
 IPOPT_TOLERANCE = 1e-9
 """IPOPT's overall NLP error tolerance ``tol`` (scaled KKT residual, dimensionless)."""
@@ -62,7 +62,7 @@ def _ellipse_norm(px, py, other, semi_axes):
 
 
 def _discrete_bicycle(config: OcpConfig):
-    """f(x, u): ``n_substeps`` explicit-Euler steps of the kinematic bicycle (``vehicle_model``)."""
+    """f(x, u): ``n_substeps`` explicit-Euler steps of the kinematic bicycle (``problem.vehicle_model``)."""
     bicycle = config.bicycle
     x = ca.SX.sym("x", 4)
     u = ca.SX.sym("u", 2)

@@ -1,4 +1,4 @@
-"""QP solvers for the LTV-MPC QP (``LtvMpcQp``), selectable by name.
+"""The QP solvers behind one interface (``QpSolver.solve(qp) -> QpSolution``), selectable by name.
 
 Two kinds:
 
@@ -8,7 +8,7 @@ Two kinds:
 - native fast paths (``piqp_native``, ``osqp_native``): the solver is set up once with the fixed
   sparsity pattern; each step only overwrites values with the library's ``update`` and re-solves
   (warm-started for OSQP).  PIQP gets real +-inf for absent bounds.
-- ``riccati_ipm``: our structure-exploiting interior-point method (``riccati_interior_point``),
+- ``riccati_ipm``: our structure-exploiting interior-point method (``interior_point``),
   which reads the QP's stage-wise data and never touches the sparse matrices, warm-started from the
   shifted previous solution; ``riccati_ipm_cold`` is the same method started cold at every step (the
   planner's floats before the warm start: select it to reproduce results of revisions before it).
@@ -26,15 +26,11 @@ from typing import Protocol
 import numpy as np
 import scipy.sparse as sp
 
-from srmpc.mpc.interior_point_warm_start import WARM_START_SETTINGS, allocate_memory, solve_in
-from srmpc.mpc.qp_builder import LtvMpcQp
-from srmpc.mpc.riccati_interior_point import (
-    STATUS_NAMES,
-    STATUS_SOLVED,
-    allocate_workspace,
-    qp_tuple,
-    scatter_solution,
-)
+from srmpc.mpc.problem import LtvMpcQp
+from srmpc.mpc.solvers.interior_point import solve_in
+from srmpc.mpc.solvers.ipm_iteration import STATUS_NAMES, STATUS_SOLVED
+from srmpc.mpc.solvers.ipm_start import WARM_START_SETTINGS, allocate_memory
+from srmpc.mpc.solvers.ipm_workspace import allocate_workspace, qp_tuple, scatter_solution
 
 DEFAULT_SOLVER = "riccati_ipm"
 
@@ -47,13 +43,13 @@ NATIVE_PIQP_TOLERANCE = INTERIOR_POINT_TOLERANCE
 
 
 RICCATI_IPM_TOLERANCE = 1e-8
-"""Residual/complementarity tolerance of ``riccati_ipm`` (see ``riccati_interior_point``)."""
+"""Residual/complementarity tolerance of ``riccati_ipm`` (see ``interior_point``)."""
 RICCATI_IPM_MAX_ITERATIONS = 50
 
 SolverConstants = namedtuple("SolverConstants", ["state_weight_hessian", "input_weight_hessian",
                                                  "rate_hessian", "slack_weights", "bounds"])
 """``riccati_ipm``'s per-OCP constants: 2Q (4,), 2R (2,), 2S (2,), (w_c1, w_c2, w_s1, w_s2), the bounds (8,)
-(see ``riccati_interior_point.solve_ltv_mpc_qp``)."""
+(see ``interior_point.solve_ltv_mpc_qp``)."""
 
 
 @dataclass
@@ -237,9 +233,9 @@ class OsqpNativeSolver:
 
 
 class RiccatiInteriorPointSolver:
-    """``riccati_interior_point`` on the QP's stage-wise data, in arrays allocated once.
+    """``interior_point`` on the QP's stage-wise data, in arrays allocated once.
 
-    Starts from the shifted previous solution (primal and multipliers, ``interior_point_warm_start``)
+    Starts from the shifted previous solution (primal and multipliers, ``ipm_start``)
     when the previous solve succeeded and ``warm_start`` is on; otherwise (and as the safeguard when a
     warm start fails) from the linearization inputs, clipped into their box, rolled out through the
     linearized dynamics. Any status other than solved is a failed solve (the planner's fallback chain

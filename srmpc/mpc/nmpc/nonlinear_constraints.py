@@ -1,6 +1,6 @@
 """The OCP's collision and safety constraints on the exact ellipse norms, and their linearization.
 
-The NLP the NMPC solves (``nmpc``) keeps the ellipse constraints as they are (``collision.py``'s
+The NLP the NMPC solves (``sqp``) keeps the ellipse constraints as they are (``problem.collision_constraints``'
 g, not the QP's supporting half-planes). With p_c(x) = (x + d_c cos psi, y + d_c sin psi) the
 centre of ego circle c and E_kj the ellipse of vehicle j at stage k, for k = 1..N::
 
@@ -11,7 +11,7 @@ centre of ego circle c and E_kj the ellipse of vehicle j at stage k, for k = 1..
 E' is the safety region (semi-axes a', b'). ``min_c g >= 1 - s`` is the same as ``g_c >= 1 - s``
 for every circle c, so the constraints are smooth except where the ellipse norm is 0 (an ego circle
 at another vehicle's centre). At the optimum s_j = max_k max(0, 1 - min_c g) and
-sigma_kj = max(0, 1 - min_c g'), the slacks ``nonlinear_cost`` charges.
+sigma_kj = max(0, 1 - min_c g'), the slacks ``problem.nonlinear_cost`` charges.
 
 Linearization about x^r (one row per stage and vehicle, as the LTV-MPC's): the circle
 c* = argmin_c g(p_c(x^r)) and the first-order Taylor expansion

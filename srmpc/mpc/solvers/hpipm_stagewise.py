@@ -1,4 +1,4 @@
-"""The LTV-MPC QP (``qp_builder.LtvMpcQp``) written as HPIPM's stage-wise OCP QP, and back.
+"""The LTV-MPC QP (``srmpc.mpc.problem.LtvMpcQp``) written as HPIPM's stage-wise OCP QP, and back.
 
 HPIPM solves, for stages k = 0..N with states x~_k and controls u~_k of per-stage sizes,
 
@@ -29,7 +29,7 @@ instead, which HPIPM's OCP form has no place for). With m = V_obs observed vehic
   ``upper_finite`` / ``row_upper_finite`` (HPIPM's C API masks them; CasADi replaces +inf by its ``inf``).
 
 Empty vehicle slots (j >= m) do not enter; their slacks are 0 in the returned z, their unique optimum in
-our QP (see ``riccati_interior_point``). Sizes at the default N = 25, m = 6: nx = 4, 12, ..., 12, 4;
+our QP (see ``interior_point``). Sizes at the default N = 25, m = 6: nx = 4, 12, ..., 12, 4;
 nu = 8, ..., 8, 14, 0; ng = 0, 6, ..., 6, 12, 0.
 
 ``z_from_stagewise`` and ``stagewise_from_z`` map HPIPM's (x~, u~) to our z and back (warm starts).
@@ -39,11 +39,10 @@ from __future__ import annotations
 
 import numpy as np
 
-STATE_DIM = 4
-INPUT_DIM = 2
+from srmpc.mpc.problem import INPUT_DIM, LATERAL_INDEX, SPEED_INDEX, STATE_DIM
+
 _POSITION_ROWS = 3
 """The collision normal acts on (x, y, psi) of x_k."""
-_LATERAL, _SPEED = 1, 3
 
 
 class StagewiseQp:
@@ -84,7 +83,8 @@ class StagewiseQp:
         self.ug = [np.full(ng[k], np.inf) for k in range(n + 1)]
         self.ug_finite = [np.zeros(ng[k]) for k in range(n + 1)]
         # boxes: x_0 all (equal), x_k: y and v (k >= 1); u_k both inputs, s (stage 0), sigma
-        self.idxbx = [np.arange(STATE_DIM, dtype=np.int32)] + [np.array([_LATERAL, _SPEED], dtype=np.int32)] * n
+        self.idxbx = ([np.arange(STATE_DIM, dtype=np.int32)]
+                      + [np.array([LATERAL_INDEX, SPEED_INDEX], dtype=np.int32)] * n)
         sigma_count = [0] + [m] * (n - 2) + [2 * m, 0]
         self.idxbu = [np.arange(nu[k], dtype=np.int32) for k in range(n)] + [np.zeros(0, dtype=np.int32)]
         self.lbx = [np.zeros(len(i)) for i in self.idxbx]

@@ -14,7 +14,7 @@ its axis; each other vehicle (length L, width W) is over-approximated by the sma
 ellipse through its corners, semi-axes (L/2, W/2) * sqrt(2), enlarged by r (paper: "a and b are
 the sum of the semi-major respectively semi-minor axis and the radius of the circle").  The
 safety region (Jain et al. 2019) is a larger ellipse for the circle centres, semi-axes
-(a + margin_long, b + margin_lat), with a cheaper slack (see ``collision.py``).
+(a + margin_long, b + margin_lat), with a cheaper slack (see ``collision_constraints.py``).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from srmpc.mpc.vehicle_model import (
+from srmpc.mpc.problem.vehicle_model import (
     CONTROL_PERIOD_S,
     MAX_SPEED_M_S,
     VEHICLE_LENGTH_M,

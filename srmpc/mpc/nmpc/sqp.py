@@ -1,16 +1,16 @@
 """Nonlinear MPC: the LTV-MPC's OCP on the exact model, solved by SQP until a convergence test (a KKT proxy) holds.
 
-The NLP (same cost, bounds and horizon as the LTV-MPC's QP, ``ocp.py``; no linearization)::
+The NLP (same cost, bounds and horizon as the LTV-MPC's QP, ``problem.ocp``; no linearization)::
 
     min  F(w) = sum_{k=1..N} ||x_k - x^ref_k||_Q^2 + sum_{k=0..N-1} ||u_k||_R^2
                 + ||u_0 - u_hat||_S^2 + sum_{k=1..N-1} ||u_k - u_{k-1}||_S^2
                 + sum_j (w_col,1 s_j + w_col,2 s_j^2) + sum_{k,j} (w_safe,1 sigma_kj + w_safe,2 sigma_kj^2)
-    s.t. x_0 = x_hat,  x_{k+1} = f(x_k, u_k)                 (exact 3-sub-step bicycle, ``vehicle_model``)
+    s.t. x_0 = x_hat,  x_{k+1} = f(x_k, u_k)                 (exact 3-sub-step bicycle, ``problem.vehicle_model``)
          min_c g_{E_kj}(p_c(x_k))  + s_j      >= 1,  s_j >= 0      (collision, ``nonlinear_constraints``)
          min_c g_{E'_kj}(p_c(x_k)) + sigma_kj >= 1,  sigma_kj >= 0  (safety region)
          y, v boxes on x_1..N; delta, a boxes on u_0..N-1,
 
-w = (x, u, s, sigma). At a solution F equals ``nonlinear_cost.nonlinear_plan_cost`` of its inputs.
+w = (x, u, s, sigma). At a solution F equals ``problem.nonlinear_cost.nonlinear_plan_cost`` of its inputs.
 
 SQP (Gauss-Newton Hessian, l1 merit line search):
 
@@ -35,7 +35,7 @@ SQP (Gauss-Newton Hessian, l1 merit line search):
    ``primal_tolerance`` and ||p_i||_inf <= ``stationarity_tolerance``, either at w_i, or at w_i + p_i
    when the full step was taken (theta measured there, the stationarity at w_i). The test is
    unscaled and uses no multipliers, so it certifies no KKT tolerance by itself: every result also
-   carries the NLP's KKT residual with the last QP's multipliers (``nmpc_kkt``: stationarity of the
+   carries the NLP's KKT residual with the last QP's multipliers (``kkt_residual``: stationarity of the
    Lagrangian, complementarity, primal infeasibility, and IPOPT's scaled error E), reported beside
    the test and not used by it (the closed-loop evaluations ran with this test).
 3. **Merit line search.** phi_nu(w) = F(w) + nu theta_1(w), theta_1 the l1 norm of the defects and
@@ -70,12 +70,12 @@ The initial guess (x, u) is clipped into the input and state boxes, x_0 set to x
 slacks start at the smallest values that satisfy the (exact) collision and safety constraints.
 
 Implementation: the whole SQP is one compiled call, ``_sqp``, steps 1-4 above in that order, on flat points
-w (``nmpc_kernels``: F, theta, screening, the subproblem's assembly, Anderson's point) and on arrays allocated
+w (``sqp_kernels``: F, theta, screening, the subproblem's assembly, Anderson's point) and on arrays allocated
 once per solver: the QP's stage-wise arrays (``LtvMpcQp``, which keeps the last subproblem) and the Riccati
 solver's workspace (``RiccatiInteriorPointSolver`` with ``warm_start=False``: every QP starts cold, from the
 solver's own starting point; the planner's warm start shifts the last solution by one control step, while the
 QPs of one SQP solve are all at one instant). Each QP is solved on max(rows, 1) vehicle slots instead of 2V
-(``nmpc_kernels.solve_subproblem``), with the same floats.
+(``solvers.solve_compact``), with the same floats.
 F and theta are summed in numpy's order and Anderson's least squares is numpy's LAPACK call, so every
 decision and iterate equals that of the numpy implementation of earlier revisions, bit for bit
 (``tests/mpc/test_nmpc.py`` tests the pieces; all 900 solves of ``benchmarks/nmpc_initial_guess.py``'s states
@@ -93,11 +93,12 @@ import numba
 import numpy as np
 
 from srmpc.mpc.compiled_step import cycles_to_us, read_cycle_counter
-from srmpc.mpc.nmpc_kernels import (
+from srmpc.mpc.nmpc.kkt_residual import KktResidual, kkt_residuals, scaled_residual
+from srmpc.mpc.nmpc.nonlinear_constraints import vehicle_frames
+from srmpc.mpc.nmpc.sqp_kernels import (
     SAFETY_SLACK_UPPER,
     NlpConstants,
     Subproblem,
-    allocate_compact,
     allocate_scratch,
     anderson_point,
     infeasibility,
@@ -108,15 +109,9 @@ from srmpc.mpc.nmpc_kernels import (
     point_size,
     qp_candidate,
     screen,
-    solve_subproblem,
 )
-from srmpc.mpc.nmpc_kkt import KktResidual, kkt_residuals, scaled_residual
-from srmpc.mpc.nonlinear_constraints import vehicle_frames
-from srmpc.mpc.ocp import OcpConfig
-from srmpc.mpc.qp_builder import LtvMpcQp
-from srmpc.mpc.riccati_interior_point import STATUS_SOLVED
-from srmpc.mpc.solvers import RiccatiInteriorPointSolver
-from srmpc.mpc.vehicle_model import KinematicBicycle
+from srmpc.mpc.problem import KinematicBicycle, LtvMpcQp, OcpConfig
+from srmpc.mpc.solvers import STATUS_SOLVED, RiccatiInteriorPointSolver, allocate_compact, solve_compact
 
 STATUS_CONVERGED = "converged"
 STATUS_MAX_ITERATIONS = "max_iterations"
@@ -182,7 +177,7 @@ class NmpcResult:
         qp_rows: vehicle rows (collision + safety) in each QP after screening.
         accelerated_steps: iterations that took the Anderson point instead of the full SQP step.
         solve_time_s: wall time of the whole solve [s] (the SQP; not the KKT residual's evaluation).
-        kkt: the NLP's KKT residual at the plan with the last QP's multipliers (``nmpc_kkt``; NaN residuals
+        kkt: the NLP's KKT residual at the plan with the last QP's multipliers (``kkt_residual``; NaN residuals
             when the last QP failed); a diagnostic beside the convergence test, not part of it.
     """
 
@@ -216,9 +211,9 @@ class NmpcResult:
 
 
 @dataclass
-class _Point:
-    """An SQP iterate w: states (N + 1, 4), inputs (N, 2), slacks (2 V_obs,) = (s_j, then the safety
-    rows' s'_j), sigmas (N, V_obs)."""
+class NlpPoint:
+    """A point of the NLP (an SQP iterate) w: states (N + 1, 4), inputs (N, 2), slacks (2 V_obs,) = (s_j, then the
+    safety rows' s'_j), sigmas (N, V_obs)."""
 
     states: np.ndarray
     inputs: np.ndarray
@@ -302,8 +297,8 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
         n_collision, n_safety = screen(w, horizon, n_obs, frames, nlp, scratch, qp.collision_rows, qp.safety_rows)
         n_rows = linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, nlp, qp)
         started = read_cycle_counter()
-        qp_status, qp_iterations, solution = solve_subproblem(qp, n_rows, measured_state, qp_settings, workspace,
-                                                              memory, compact)
+        qp_status, qp_iterations, solution = solve_compact(qp, n_rows, measured_state, qp_settings, workspace,
+                                                           memory, compact)
         record.qp_cycles[iterations] = read_cycle_counter() - started
         record.qp_iterations[iterations] = qp_iterations
         record.qp_rows[iterations] = n_rows
@@ -394,7 +389,7 @@ class NmpcSolver:
         self.qp_solver.bind(self.qp)
         geometry, weights = config.geometry, config.weights
         self.nlp = NlpConstants(
-            tuple(self.model._args), np.asarray(geometry.circle_offsets_m, dtype=np.float64),
+            tuple(self.model.kernel_args), np.asarray(geometry.circle_offsets_m, dtype=np.float64),
             np.asarray(geometry.collision_semi_axes_m, dtype=np.float64),
             np.asarray(geometry.safety_semi_axes_m, dtype=np.float64), np.asarray(weights.state, dtype=np.float64),
             np.asarray(weights.input, dtype=np.float64), np.asarray(weights.input_rate, dtype=np.float64),
@@ -451,12 +446,12 @@ class NmpcSolver:
         vehicle_frames(others, others.shape[1], frames)
         return frames
 
-    def _point(self, w: np.ndarray, n_obs: int) -> _Point:
-        return _Point(*point_parts(w, self.config.horizon, n_obs))
+    def _point(self, w: np.ndarray, n_obs: int) -> NlpPoint:
+        return NlpPoint(*point_parts(w, self.config.horizon, n_obs))
 
     # ------------------------------------------------------------------ NLP functions
     def initial_point(self, measured_state: np.ndarray, others: np.ndarray, initial_states: np.ndarray,
-                      initial_inputs: np.ndarray) -> _Point:
+                      initial_inputs: np.ndarray) -> NlpPoint:
         """The guess clipped into the boxes, x_0 = x_hat, the smallest feasible slacks (module doc)."""
         measured_state, others, initial_states, initial_inputs = self._problem(measured_state, others,
                                                                                initial_states, initial_inputs)
@@ -466,7 +461,7 @@ class NmpcSolver:
                       self._scratch, w)
         return self._point(w, n_obs)
 
-    def evaluate(self, point: _Point, measured_state: np.ndarray, last_input: np.ndarray, others: np.ndarray,
+    def evaluate(self, point: NlpPoint, measured_state: np.ndarray, last_input: np.ndarray, others: np.ndarray,
                  tracking_reference: np.ndarray) -> tuple[float, float, float]:
         """(F, theta_1, theta_inf) at ``point`` (module doc), as the SQP evaluates them."""
         horizon, n_obs = self.config.horizon, others.shape[1]
@@ -511,7 +506,7 @@ class NmpcSolver:
         elapsed = time.perf_counter() - start
         if iterations:
             qp.n_observed = int(record.qp_rows[iterations - 1])
-            qp._sparse_values_stale = True  # the stage-wise arrays changed (as after ``LtvMpcQp.update``)
+            qp.stagewise_data_changed()  # the stage-wise arrays changed (as after ``LtvMpcQp.update``)
         kkt = self._kkt_residual(w, n_obs, others, status, iterations, theta_inf)
         point = self._point(w, n_obs)
         steps = iterations - (status == _QP_FAILED)
@@ -527,7 +522,7 @@ class NmpcSolver:
 
     def _kkt_residual(self, w: np.ndarray, n_obs: int, others: np.ndarray, status: int, iterations: int,
                       theta_inf: float) -> KktResidual:
-        """``nmpc_kkt``'s residual at the plan w with the multipliers of the last QP (still in the Riccati solver's
+        """``kkt_residual``'s residual at the plan w with the multipliers of the last QP (still in the Riccati solver's
         workspace; read only, so the next solve is unchanged)."""
         if status == _QP_FAILED or not iterations:
             return KktResidual.unavailable(theta_inf)
@@ -540,4 +535,4 @@ class NmpcSolver:
                                n_equalities, n_inequalities)
 
 
-__all__ = ["KktResidual", "NmpcResult", "NmpcSettings", "NmpcSolver", "SAFETY_SLACK_UPPER"]
+__all__ = ["KktResidual", "NlpPoint", "NmpcResult", "NmpcSettings", "NmpcSolver", "SAFETY_SLACK_UPPER"]

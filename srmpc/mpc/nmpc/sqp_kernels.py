@@ -1,10 +1,10 @@
-"""The NMPC's NLP functions and SQP steps as compiled kernels on a flat point (``nmpc``'s module doc).
+"""The NMPC's NLP functions and SQP steps as compiled kernels on a flat point (``sqp``'s module doc).
 
 A point w = (x, u, s, sigma) is one flat array in the order of Anderson acceleration's vectors:
 x_0..N (N + 1, 4), u_0..N-1 (N, 2), s (2 V_obs: the collision rows' s_j, then the safety rows' s'_j),
 sigma (N, V_obs); ``point_parts`` gives the four views.
 
-Kernels (``nmpc._sqp`` calls them in the order of the module doc's steps):
+Kernels (``sqp._sqp`` calls them in the order of the module doc's steps):
 
 - ``objective``: F(w); ``infeasibility``: (theta_1, theta_inf), the l1 and max norms of the dynamics
   defects |x_{k+1} - f(x_k, u_k)|, |x_0 - x_hat| and the violations of the boxes, the exact collision and
@@ -29,10 +29,8 @@ from collections import namedtuple
 import numba
 import numpy as np
 
-from srmpc.mpc.interior_point_warm_start import WarmStartMemory, allocate_memory, solve_in
-from srmpc.mpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms
-from srmpc.mpc.riccati_interior_point import _Gradients, _InequalityArrays, _Newton, _offsets, _Primal, qp_tuple
-from srmpc.mpc.vehicle_model import _linearize_horizon
+from srmpc.mpc.nmpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms
+from srmpc.mpc.problem import linearize_horizon
 
 SAFETY_SLACK_UPPER = 10.0
 """Upper box of the safety slacks sigma_kj in the QP subproblem (ellipse-norm units, dimensionless).
@@ -62,18 +60,6 @@ Subproblem = namedtuple("Subproblem", [
 """The QP subproblem: ``LtvMpcQp``'s stage-wise arrays (for 2 V slots; the QP solver reads them), the
 frames (``vehicle_frames``) of its rows' vehicles (N + 1, 2 V, 4) and their norms (N, 2 V), the screened
 vehicles' indices (V,) x 2."""
-
-
-CompactQp = namedtuple("CompactQp", ["coefficients", "row_lower", "sigma_upper", "memory"])
-"""The QP with only its rows' slots (``solve_subproblem``): row data (flat, room for N 2V 3, N 2V, N 2V values)
-and a warm-start memory (``allocate_memory`` for 2V slots) whose leading entries take the compact layout."""
-
-
-def allocate_compact(horizon: int, n_slots: int) -> CompactQp:
-    """``CompactQp`` for horizon N and up to ``n_slots`` QP slots."""
-    m = _offsets(horizon, n_slots)[10]
-    return CompactQp(np.zeros(horizon * n_slots * 3), np.zeros(horizon * n_slots), np.zeros(horizon * n_slots),
-                     allocate_memory(horizon, n_slots, m))
 
 
 def allocate_scratch(horizon: int, max_vehicles: int) -> KernelScratch:
@@ -173,7 +159,7 @@ def _positive_part(value):
 
 @numba.njit(cache=True, error_model="numpy")
 def objective(w, horizon, n_obs, tracking_reference, last_input, constants, scratch):
-    """F(w) (``nmpc``'s module doc); ``scratch`` (>= 4 N) holds the terms of each sum."""
+    """F(w) (``sqp``'s module doc); ``scratch`` (>= 4 N) holds the terms of each sum."""
     states, inputs, _, _ = point_parts(w, horizon, n_obs)
     q, r, s = constants.state_weight, constants.input_weight, constants.rate_weight
     for k in range(horizon):
@@ -207,9 +193,9 @@ def objective(w, horizon, n_obs, tracking_reference, last_input, constants, scra
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _next_state(state, control, model, current):
-    """f(x, u) into ``current``: the sub-steps of ``vehicle_model._substep_with_jacobians``, states only, in the
-    same floating-point operations, with beta = arctan(tan(delta) / 2) and sin(beta) computed once for the
+def next_state(state, control, model, current):
+    """f(x, u) into ``current``: the sub-steps of ``problem.vehicle_model``'s ``_substep_with_jacobians``, states
+    only, in the same floating-point operations, with beta = arctan(tan(delta) / 2) and sin(beta) computed once for the
     control period (the input is held over its sub-steps)."""
     h, n_substeps, half_length, v_max, v_min = model
     beta = np.arctan(0.5 * np.tan(control[0]))
@@ -246,7 +232,7 @@ def infeasibility(w, horizon, n_obs, measured_state, frames, constants, scratch)
     input_lower, input_upper = constants.input_lower, constants.input_upper
     current = scratch.state
     for k in range(horizon):
-        _next_state(states[k], inputs[k], constants.model, current)
+        next_state(states[k], inputs[k], constants.model, current)
         for c in range(4):
             terms[4 * k + c] = abs(states[k + 1, c] - current[c])
     n = 4 * horizon
@@ -288,8 +274,6 @@ def infeasibility(w, horizon, n_obs, measured_state, frames, constants, scratch)
     return pairwise_sum(terms, 0, n), largest
 
 
-
-
 @numba.njit(cache=True, error_model="numpy")
 def initial_point(measured_state, frames, n_obs, initial_states, initial_inputs, constants, scratch, w):
     """The guess clipped into the boxes, x_0 = x_hat, the smallest feasible slacks (module doc) into w."""
@@ -319,8 +303,8 @@ def linearize_dynamics(states, inputs, model, next_states, state_matrices, input
     (N, 4), (N, 4, 4), (N, 4, 2), (N, 4) arrays; ``model`` is ``NlpConstants.model`` (``linearize_subproblem``'s
     Jacobians, the same floats)."""
     h, n_substeps, half_length, v_max, v_min = model
-    _linearize_horizon(states, inputs, h, n_substeps, half_length, v_max, v_min, next_states, state_matrices,
-                       input_matrices, affine_offsets)
+    linearize_horizon(states, inputs, h, n_substeps, half_length, v_max, v_min, next_states, state_matrices,
+                      input_matrices, affine_offsets)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -356,8 +340,8 @@ def linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, const
     safety rows of ``qp.safety_rows[:n_safety]`` (sigma_hi = ``SAFETY_SLACK_UPPER``), empty slots zero."""
     states, inputs, _, _ = point_parts(w, horizon, n_obs)
     h, n_substeps, half_length, v_max, v_min = constants.model
-    _linearize_horizon(states, inputs, h, n_substeps, half_length, v_max, v_min, qp.next_states,
-                       qp.state_matrices, qp.input_matrices, qp.affine_offsets)
+    linearize_horizon(states, inputs, h, n_substeps, half_length, v_max, v_min, qp.next_states,
+                      qp.state_matrices, qp.input_matrices, qp.affine_offsets)
     qp.linearization_inputs[:, :] = inputs
     n_rows = n_collision + n_safety
     for row in range(n_rows):
@@ -385,7 +369,7 @@ def linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, const
 
 @numba.njit(cache=True, error_model="numpy")
 def qp_candidate(w, horizon, n_obs, solution, n_collision, n_safety, qp, candidate):
-    """The QP's ``solution`` (a ``riccati_interior_point._Primal``) as a point w_QP: its states and inputs,
+    """The QP's ``solution`` (a ``solvers.Primal``) as a point w_QP: its states and inputs,
     the rows' slacks in their vehicles' places, the screened vehicles' slacks those of w. Returns False if
     the solution is not finite (every entry, as ``RiccatiInteriorPointSolver.solve`` checks)."""
     for block in (solution.states.ravel(), solution.inputs.ravel(), solution.slacks, solution.sigmas.ravel()):
@@ -447,152 +431,3 @@ def anderson_point(iterates, images, oldest, count, horizon, n_obs, measured_sta
     for k in range(horizon):
         for j in range(n_obs):
             sigmas[k, j] = _positive_part(sigmas[k, j])
-
-
-# ---------------------------------------------------------------------------------------------- compact QP
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _leading(array, n):
-    """The first n entries of a contiguous array (a view)."""
-    return array.reshape(array.size)[:n]
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _leading_2d(array, rows, columns):
-    """The first rows x columns entries of a contiguous array as a (rows, columns) view."""
-    return array.reshape(array.size)[:rows * columns].reshape((rows, columns))
-
-
-@numba.njit(cache=True, error_model="numpy")
-def compact_workspace(workspace, n_slots):
-    """Views of the leading entries of ``workspace`` (``allocate_workspace(N, V)``) shaped as
-    ``allocate_workspace(N, n_slots)``'s arrays, n_slots <= V. A solve reads only what it wrote or
-    ``_reset_workspace`` reset, so it solves in these views as in a fresh workspace of n_slots slots."""
-    point, arrays, gradients, newton, direction = workspace
-    horizon = point.inputs.shape[0]
-    m = _offsets(horizon, n_slots)[10]
-    compact_point = _Primal(point.states, point.inputs, _leading(point.slacks, n_slots),
-                            _leading_2d(point.sigmas, horizon, n_slots))
-    compact_direction = _Primal(direction.states, direction.inputs, _leading(direction.slacks, n_slots),
-                                _leading_2d(direction.sigmas, horizon, n_slots))
-    compact_arrays = _InequalityArrays(
-        _leading(arrays.active, m), _leading_2d(arrays.has_sigma, horizon, n_slots), _leading(arrays.values, m),
-        _leading(arrays.t, m), _leading(arrays.z, m), _leading(arrays.d, m), _leading(arrays.residuals, m),
-        _leading(arrays.gamma, m), _leading(arrays.dt, m), _leading(arrays.dz, m), _leading(arrays.dt_aff, m),
-        _leading(arrays.dz_aff, m), _leading(arrays.t_inverse, m), _leading(arrays.z_inverse, m),
-        _leading(arrays.spare, m), _leading_2d(arrays.zero_rows, horizon, n_slots), arrays.zero_bounds)
-    compact_gradients = _Gradients(
-        gradients.states, gradients.inputs, _leading(gradients.slacks, n_slots),
-        _leading_2d(gradients.sigmas, horizon, n_slots), gradients.model_states, gradients.model_inputs,
-        _leading(gradients.model_slacks, n_slots), gradients.nu, gradients.nu_next)
-    columns = newton.column_scaled
-    compact_newton = _Newton(
-        newton.state_hessians, newton.input_hessians, _leading_2d(newton.row_weight, horizon, n_slots),
-        _leading_2d(newton.sigma_hessian, horizon, n_slots), _leading(newton.slack_hessian, n_slots),
-        newton.cost_to_go, newton.gains, newton.input_cholesky, newton.scaled_cross, newton.cost_to_go_vector,
-        newton.scaled_feedforward,
-        columns.reshape(columns.size)[:n_slots * horizon * 2].reshape((n_slots, horizon, 2)),
-        newton.column_gradients, newton.zero_input_gradients, _leading_2d(newton.schur_base, n_slots, n_slots),
-        _leading_2d(newton.schur, n_slots, n_slots))
-    return compact_point, compact_arrays, compact_gradients, compact_newton, compact_direction
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _slot_groups(horizon, n_slots):
-    """The starts of the inequality groups with one entry per stage and slot (collision rows, sigma lower, sigma
-    upper), of the slack group (one per slot), of the box groups (8 N entries), and m (``_offsets``)."""
-    offsets = _offsets(horizon, n_slots)
-    return (offsets[0], offsets[2], offsets[3]), offsets[1], offsets[4], offsets[10]
-
-
-@numba.njit(cache=True, error_model="numpy")
-def compact_memory(memory, n_slots, compact):
-    """The warm-start ``memory`` of a V-slot QP as the memory of its first n_slots slots, into ``compact``'s
-    leading entries (returned as a ``WarmStartMemory`` of views)."""
-    horizon, n_full = memory.sigmas.shape
-    groups, slack, boxes, m = _slot_groups(horizon, n_slots)
-    full_groups, full_slack, full_boxes, full_m = _slot_groups(horizon, n_full)
-    out = WarmStartMemory(compact.inputs, _leading(compact.slacks, n_slots),
-                          _leading_2d(compact.sigmas, horizon, n_slots), _leading(compact.z, m), compact.valid)
-    out.valid[0] = memory.valid[0]
-    if not memory.valid[0]:
-        return out
-    out.inputs[:, :] = memory.inputs
-    for j in range(n_slots):
-        out.slacks[j] = memory.slacks[j]
-        out.z[slack + j] = memory.z[full_slack + j]
-        for k in range(horizon):
-            out.sigmas[k, j] = memory.sigmas[k, j]
-            for group in range(3):
-                out.z[groups[group] + k * n_slots + j] = memory.z[full_groups[group] + k * n_full + j]
-    out.z[boxes:m] = memory.z[full_boxes:full_m]
-    return out
-
-
-@numba.njit(cache=True, error_model="numpy")
-def expand_memory(compact, memory):
-    """The memory of a compact QP (``compact_memory``'s) as that of the V-slot QP into ``memory``: the slots past
-    the compact ones hold 0 (the values a V-slot solve leaves in its unobserved slots and inactive rows)."""
-    memory.valid[0] = compact.valid[0]
-    if not compact.valid[0]:
-        return
-    horizon, n_slots = compact.sigmas.shape
-    n_full = memory.sigmas.shape[1]
-    groups, slack, boxes, m = _slot_groups(horizon, n_slots)
-    full_groups, full_slack, full_boxes, full_m = _slot_groups(horizon, n_full)
-    memory.inputs[:, :] = compact.inputs
-    memory.slacks[:] = 0.0
-    memory.sigmas[:, :] = 0.0
-    memory.z[:] = 0.0
-    for j in range(n_slots):
-        memory.slacks[j] = compact.slacks[j]
-        memory.z[full_slack + j] = compact.z[slack + j]
-        for k in range(horizon):
-            memory.sigmas[k, j] = compact.sigmas[k, j]
-            for group in range(3):
-                memory.z[full_groups[group] + k * n_full + j] = compact.z[groups[group] + k * n_slots + j]
-    memory.z[full_boxes:full_m] = compact.z[boxes:m]
-
-
-@numba.njit(cache=True, error_model="numpy")
-def subproblem_multipliers(workspace, n_rows):
-    """The inequality multipliers z (m,) of the last QP that ``solve_subproblem`` solved with n_rows vehicle rows
-    (a view into ``workspace``), and the starts of its inequality groups (``riccati_interior_point``'s layout on
-    max(n_rows, 1) slots: rows, slack lower, sigma lower, sigma upper, y lower, y upper, v lower, v upper, input
-    lower, input upper, then m)."""
-    n_slots = max(n_rows, 1)
-    offsets = _offsets(workspace[0].inputs.shape[0], n_slots)
-    return _leading(workspace[1].z, offsets[10]), offsets
-
-
-@numba.njit(cache=True, error_model="numpy")
-def solve_subproblem(qp, n_rows, measured_state, qp_settings, workspace, memory, compact):
-    """The QP in ``qp``'s arrays with its n_rows vehicle rows (``linearize_subproblem``), solved by
-    ``solve_in`` as ``RiccatiInteriorPointSolver.solve`` solves it, but on a QP of max(n_rows, 1) slots instead
-    of 2V (in ``compact_workspace`` views, the warm-start memory translated by ``compact_memory`` and
-    ``expand_memory``): the same floats (the solver's loops skip the empty slots' rows, and the order of the
-    others is kept), in less time. Returns (status, iterations, the solution as a ``_Primal`` of the compact
-    QP)."""
-    horizon = qp.coefficients.shape[0]
-    n_slots = max(n_rows, 1)
-    coefficients = compact.coefficients[:horizon * n_slots * 3].reshape((horizon, n_slots, 3))
-    row_lower = _leading_2d(compact.row_lower, horizon, n_slots)
-    sigma_upper = _leading_2d(compact.sigma_upper, horizon, n_slots)
-    for k in range(horizon):
-        for j in range(n_slots):
-            coefficients[k, j, 0] = qp.coefficients[k, j, 0]
-            coefficients[k, j, 1] = qp.coefficients[k, j, 1]
-            coefficients[k, j, 2] = qp.coefficients[k, j, 2]
-            row_lower[k, j] = qp.row_lower[k, j]
-            sigma_upper[k, j] = qp.sigma_upper[k, j]
-    constants = qp_settings.constants
-    problem = qp_tuple(qp.last_input, qp.state_matrices, qp.input_matrices, qp.affine_offsets, qp.tracking_reference,
-                       coefficients, row_lower, sigma_upper, n_rows, constants.state_weight_hessian,
-                       constants.input_weight_hessian, constants.rate_hessian, constants.slack_weights,
-                       constants.bounds)
-    compact_work = compact_workspace(workspace, n_slots)
-    compact_memory_ = compact_memory(memory, n_slots, compact.memory)
-    status, iterations, _ = solve_in(measured_state, problem, qp.linearization_inputs, qp_settings.tolerance,
-                                     qp_settings.max_iterations, compact_work, compact_memory_,
-                                     qp_settings.warm_start, qp_settings.warm_start_settings)
-    expand_memory(compact_memory_, memory)
-    return status, iterations, compact_work[0]

@@ -17,7 +17,7 @@ QP (paper eq. qp), kept in two equivalent forms that share the same value arrays
 - E z = e: x_0 = x_hat and x_{k+1} - A_k x_k - B_k u_k = c_k (linearized dynamics, eq. OCP_b/c).
 - G z >= h: per stage k >= 1 and vehicle j one row, the linearized collision constraint of the
   critical ego circle merged with its safety region: n^T J_p x_k + s_j + sigma_kj >= h_kj
-  (see ``collision.py``).
+  (see ``collision_constraints.py``).
 - Box: y_k and v_k (k >= 1), u_k, s >= 0, 0 <= sigma_kj <= h'(n) - 1 (changes each step);
   x, psi and x_0 are free (+-inf).
 
@@ -37,12 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from srmpc.mpc.collision import linearize_collision_constraints
-from srmpc.mpc.ocp import OcpConfig
-from srmpc.mpc.vehicle_model import INPUT_DIM, STATE_DIM, KinematicBicycle
-
-_LATERAL = 1
-_SPEED = 3
+from srmpc.mpc.problem.collision_constraints import linearize_collision_constraints
+from srmpc.mpc.problem.ocp import OcpConfig
+from srmpc.mpc.problem.vehicle_model import INPUT_DIM, LATERAL_INDEX, SPEED_INDEX, STATE_DIM, KinematicBicycle
 
 
 @dataclass(frozen=True)
@@ -142,6 +139,184 @@ def csc_with_positions(
     return matrix, positions
 
 
+def _equality_pattern(layout: VariableLayout) -> tuple[sp.csc_matrix, np.ndarray, np.ndarray]:
+    """E z = e (module doc): x_0 = x_hat; x_{k+1} - A_k x_k - B_k u_k = c_k.
+
+    Returns E with its constant entries (the identity blocks) set, and the data positions of the entries of
+    -A_k (N, 4, 4) and -B_k (N, 4, 2).
+    """
+    horizon = layout.horizon
+    state_idx = layout.state_indices()
+    input_idx = layout.input_indices()
+    eq = _PatternBuilder()
+    initial_entries = eq.add(np.arange(STATE_DIM), state_idx[0])
+    rows_k = STATE_DIM + STATE_DIM * np.arange(horizon)[:, None] + np.arange(STATE_DIM)
+    next_entries = eq.add(rows_k, state_idx[1:])
+    a_entries = eq.add(rows_k[:, :, None], state_idx[:-1, None, :])
+    b_entries = eq.add(rows_k[:, :, None], input_idx[:, None, :])
+    matrix, eq_pos = eq.finalize((STATE_DIM * (horizon + 1), layout.n_variables))
+    matrix.data[eq_pos[initial_entries]] = 1.0
+    matrix.data[eq_pos[next_entries]] = 1.0
+    return matrix, eq_pos[a_entries], eq_pos[b_entries]
+
+
+def _inequality_pattern(layout: VariableLayout) -> tuple[sp.csc_matrix, np.ndarray]:
+    """G z >= h (module doc): one row per stage k >= 1 and vehicle slot j, n^T J_p x_k + s_j + sigma_kj >= h_kj.
+
+    Returns G with its slack entries (1) set, and the data positions of the row normals' entries (N, V, 3).
+    """
+    horizon, n_slots = layout.horizon, layout.n_slots
+    state_idx = layout.state_indices()
+    rows = np.arange(horizon)[:, None] * n_slots + np.arange(n_slots)[None, :]  # (N, V)
+    ineq = _PatternBuilder()
+    coef_entries = ineq.add(rows[..., None], state_idx[1:, None, :3])  # (N, V, 3)
+    col_slack_entries = ineq.add(rows, layout.collision_slack_indices()[None, :])
+    safe_slack_entries = ineq.add(rows, layout.safety_slack_indices())
+    matrix, ineq_pos = ineq.finalize((horizon * n_slots, layout.n_variables))
+    matrix.data[ineq_pos[col_slack_entries]] = 1.0
+    matrix.data[ineq_pos[safe_slack_entries]] = 1.0
+    return matrix, ineq_pos[coef_entries]
+
+
+def _box_bounds(config: OcpConfig, layout: VariableLayout) -> tuple[np.ndarray, np.ndarray]:
+    """z_lo <= z <= z_hi (module doc): y_k and v_k (k >= 1), u_k, s >= 0, 0 <= sigma_kj <= h'(n) - 1 (0 until
+    ``update`` sets it); +-inf elsewhere. Returns (z_lo, z_hi)."""
+    n = layout.n_variables
+    state_idx = layout.state_indices()
+    input_idx = layout.input_indices()
+    safe_slack_idx = layout.safety_slack_indices()
+    variable_lower = np.full(n, -np.inf)
+    variable_upper = np.full(n, np.inf)
+    variable_lower[state_idx[1:, LATERAL_INDEX]] = config.lateral_bounds_m[0]
+    variable_upper[state_idx[1:, LATERAL_INDEX]] = config.lateral_bounds_m[1]
+    variable_lower[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_m_s[0]
+    variable_upper[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_m_s[1]
+    variable_lower[input_idx[:, 0]] = config.steering_bounds_rad[0]
+    variable_upper[input_idx[:, 0]] = config.steering_bounds_rad[1]
+    variable_lower[input_idx[:, 1]] = config.acceleration_bounds_m_s2[0]
+    variable_upper[input_idx[:, 1]] = config.acceleration_bounds_m_s2[1]
+    variable_lower[layout.collision_slack_indices()] = 0.0
+    variable_lower[safe_slack_idx] = 0.0
+    variable_upper[safe_slack_idx] = 0.0  # set per step to h'(n) - 1
+    return variable_lower, variable_upper
+
+
+def _cost(config: OcpConfig, layout: VariableLayout) -> tuple[sp.csc_matrix, np.ndarray]:
+    """P (upper triangle, constant) and q without its per-step entries (module doc): 2 Q on x_k (k >= 1),
+    2 R + 2 S (+ 2 S if k < N - 1) on u_k, -2 S between u_{k-1} and u_k, 2 w_2 and w_1 on the slacks."""
+    weights = config.weights
+    horizon = config.horizon
+    n = layout.n_variables
+    col_slack_idx = layout.collision_slack_indices()
+    safe_slack_idx = layout.safety_slack_indices()
+    state_weight = np.asarray(weights.state, dtype=np.float64)
+    input_weight = np.asarray(weights.input, dtype=np.float64)
+    rate_weight = np.asarray(weights.input_rate, dtype=np.float64)
+    rows: list[np.ndarray] = []
+    cols: list[np.ndarray] = []
+    values: list[np.ndarray] = []
+
+    def add(r, c, v):
+        r, c, v = np.broadcast_arrays(np.asarray(r), np.asarray(c), np.asarray(v, float))
+        rows.append(r.ravel())
+        cols.append(c.ravel())
+        values.append(v.ravel())
+
+    states = layout.state_indices()[1:]
+    add(states, states, np.broadcast_to(2.0 * state_weight, states.shape))
+    inputs = layout.input_indices()
+    # backward rate terms: every u_k has one (u_0 against u_hat); forward: all but the last
+    forward = (np.arange(horizon) < horizon - 1).astype(float)[:, None]
+    diag = 2.0 * input_weight[None, :] + 2.0 * rate_weight[None, :] * (1.0 + forward)
+    add(inputs, inputs, diag)
+    add(inputs[:-1], inputs[1:], np.broadcast_to(-2.0 * rate_weight, inputs[1:].shape))
+    add(col_slack_idx, col_slack_idx, 2.0 * weights.collision_slack_quadratic)
+    add(safe_slack_idx, safe_slack_idx, 2.0 * weights.safety_slack_quadratic)
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    cost_matrix, positions = csc_with_positions(r, c, (n, n))
+    cost_matrix.data[positions] = np.concatenate(values)
+    cost_vector = np.zeros(n)
+    cost_vector[col_slack_idx] = weights.collision_slack_linear
+    cost_vector[safe_slack_idx] = weights.safety_slack_linear
+    return cost_matrix, cost_vector
+
+
+@dataclass(frozen=True)
+class _GeneralForm:
+    """l <= A z <= u with A = [E; G; I_box] (module doc), one box row per variable with a finite bound.
+
+    Attributes:
+        matrix: A with the box rows' entries (1) set; E's and G's entries are copied per step.
+        lower, upper: l and u with the box rows set from the variable bounds and G's rows' u = +inf.
+        boxed_variables: the variables with a box row, in row order.
+        from_equality, from_inequality: data positions in A of E's and G's entries (in their storage order).
+        box_row_of_variable: (n,) each variable's box row, -1 if it has none.
+    """
+
+    matrix: sp.csc_matrix
+    lower: np.ndarray
+    upper: np.ndarray
+    boxed_variables: np.ndarray
+    from_equality: np.ndarray
+    from_inequality: np.ndarray
+    box_row_of_variable: np.ndarray
+
+
+def _general_form(equality_matrix: sp.csc_matrix, inequality_matrix: sp.csc_matrix, variable_lower: np.ndarray,
+                  variable_upper: np.ndarray) -> _GeneralForm:
+    """A = [E; G; I_box] and its bounds (module doc) from the split form's patterns and boxes."""
+    n_equalities, n = equality_matrix.shape
+    n_inequalities = inequality_matrix.shape[0]
+    boxed = np.flatnonzero(np.isfinite(variable_lower) | np.isfinite(variable_upper))
+    eq_coo = equality_matrix.tocoo()
+    ineq_coo = inequality_matrix.tocoo()
+    # tocoo of a canonical CSC enumerates data in storage order
+    rows = np.concatenate([eq_coo.row, ineq_coo.row + n_equalities,
+                           n_equalities + n_inequalities + np.arange(boxed.size)])
+    cols = np.concatenate([eq_coo.col, ineq_coo.col, boxed])
+    n_rows = n_equalities + n_inequalities + boxed.size
+    general_matrix, gen_pos = csc_with_positions(rows, cols, (n_rows, n))
+    n_eq_nnz = equality_matrix.nnz
+    n_ineq_nnz = inequality_matrix.nnz
+    general_matrix.data[gen_pos[n_eq_nnz + n_ineq_nnz:]] = 1.0
+    general_lower = np.empty(n_rows)
+    general_upper = np.empty(n_rows)
+    box_rows = slice(n_equalities + n_inequalities, n_rows)
+    general_lower[box_rows] = variable_lower[boxed]
+    general_upper[box_rows] = variable_upper[boxed]
+    general_upper[n_equalities:n_equalities + n_inequalities] = np.inf
+    box_row_of_variable = np.full(n, -1)
+    box_row_of_variable[boxed] = n_equalities + n_inequalities + np.arange(boxed.size)
+    return _GeneralForm(general_matrix, general_lower, general_upper, boxed, gen_pos[:n_eq_nnz],
+                        gen_pos[n_eq_nnz:n_eq_nnz + n_ineq_nnz], box_row_of_variable)
+
+
+def _shift_maps(layout: VariableLayout, n_equalities: int, n_inequalities: int,
+                general: _GeneralForm) -> tuple[np.ndarray, np.ndarray]:
+    """One-stage shift maps (warm starts): the value of index i after the shift is taken from shift[i]; the last
+    stage repeats itself. Returns the maps of z (n,) and of the general form's rows."""
+    horizon, n_slots, n = layout.horizon, layout.n_slots, layout.n_variables
+    state_idx = layout.state_indices()
+    input_idx = layout.input_indices()
+    safe_slack_idx = layout.safety_slack_indices()
+    boxed = general.boxed_variables
+    n_rows = n_equalities + n_inequalities + boxed.size
+    stage_of = np.minimum(np.arange(horizon + 1) + 1, horizon)
+    input_stage_of = np.minimum(np.arange(horizon) + 1, horizon - 1)
+    sigma_stage_of = np.minimum(np.arange(horizon) + 1, horizon - 1)
+    variable_shift = np.arange(n)
+    variable_shift[state_idx] = state_idx[stage_of]
+    variable_shift[input_idx] = input_idx[input_stage_of]
+    variable_shift[safe_slack_idx] = safe_slack_idx[sigma_stage_of]
+    eq_blocks = np.arange(n_equalities).reshape(horizon + 1, STATE_DIM)
+    ineq_blocks = np.arange(n_inequalities).reshape(horizon, n_slots)
+    row_shift = np.arange(n_rows)
+    row_shift[eq_blocks] = eq_blocks[stage_of]
+    row_shift[n_equalities + ineq_blocks] = n_equalities + ineq_blocks[sigma_stage_of]
+    row_shift[n_equalities + n_inequalities:n_rows] = general.box_row_of_variable[variable_shift[boxed]]
+    return variable_shift, row_shift
+
+
 class LtvMpcQp:
     """Holds the QP's fixed pattern and overwrites its values each step (see module doc).
 
@@ -151,8 +326,9 @@ class LtvMpcQp:
         variable_lower (constant), variable_upper,
         general_matrix (A), general_lower (l), general_upper (u).
 
-    Stage-wise data (overwritten in place by ``update``; what structure-exploiting solvers
-    read, see ``riccati_interior_point``):
+    Stage-wise data (overwritten in place by ``update``, or directly by the compiled planner step and the
+    NMPC, which then call ``stagewise_data_changed``; what structure-exploiting solvers read, see
+    ``srmpc.mpc.solvers.interior_point``):
         measured_state x_hat (4,), last_input u_hat (2,), tracking_reference x^ref (N + 1, 4),
         linearization_inputs u^r (N, 2), state_matrices A_k (N, 4, 4),
         input_matrices B_k (N, 4, 2), affine_offsets c_k (N, 4), next_states f(x^r_k, u^r_k),
@@ -163,116 +339,42 @@ class LtvMpcQp:
     def __init__(self, config: OcpConfig, model: KinematicBicycle | None = None) -> None:
         self.config = config
         self.model = model or KinematicBicycle(config.bicycle)
-        horizon, n_slots = config.horizon, config.max_vehicles
         geometry = config.geometry
         self.circle_offsets = np.asarray(geometry.circle_offsets_m, dtype=np.float64)
         self.collision_semi_axes = np.asarray(geometry.collision_semi_axes_m)
         self.safety_semi_axes = np.asarray(geometry.safety_semi_axes_m)
-        layout = VariableLayout.build(horizon, n_slots)
+        layout = VariableLayout.build(config.horizon, config.max_vehicles)
         self.layout = layout
-        n = layout.n_variables
-        state_idx = layout.state_indices()
-        input_idx = layout.input_indices()
-        col_slack_idx = layout.collision_slack_indices()
-        safe_slack_idx = layout.safety_slack_indices()
-        self._state_idx = state_idx
-        self._input_idx = input_idx
+        self._state_idx = layout.state_indices()
+        self._input_idx = layout.input_indices()
+        self._col_slack_idx = layout.collision_slack_indices()
+        self._safe_slack_idx = layout.safety_slack_indices()
 
-        # --- equality rows: x_0 = x_hat; x_{k+1} - A_k x_k - B_k u_k = c_k
-        eq = _PatternBuilder()
-        initial_entries = eq.add(np.arange(STATE_DIM), state_idx[0])
-        rows_k = STATE_DIM + STATE_DIM * np.arange(horizon)[:, None] + np.arange(STATE_DIM)
-        next_entries = eq.add(rows_k, state_idx[1:])
-        a_entries = eq.add(rows_k[:, :, None], state_idx[:-1, None, :])
-        b_entries = eq.add(rows_k[:, :, None], input_idx[:, None, :])
-        self.n_equalities = STATE_DIM * (horizon + 1)
-        self._equality_matrix, eq_pos = eq.finalize((self.n_equalities, n))
-        self._equality_matrix.data[eq_pos[initial_entries]] = 1.0
-        self._equality_matrix.data[eq_pos[next_entries]] = 1.0
-        self._a_pos = eq_pos[a_entries]  # (N, 4, 4)
-        self._b_pos = eq_pos[b_entries]  # (N, 4, 2)
+        self._equality_matrix, self._a_pos, self._b_pos = _equality_pattern(layout)
+        self.n_equalities = self._equality_matrix.shape[0]
         self._equality_rhs = np.zeros(self.n_equalities)
-
-        # --- inequality rows: one per stage k >= 1 and vehicle slot j
-        rows = np.arange(horizon)[:, None] * n_slots + np.arange(n_slots)[None, :]  # (N, V)
-        ineq = _PatternBuilder()
-        coef_entries = ineq.add(rows[..., None], state_idx[1:, None, :3])  # (N, V, 3)
-        col_slack_entries = ineq.add(rows, col_slack_idx[None, :])
-        safe_slack_entries = ineq.add(rows, safe_slack_idx)
-        self.n_inequalities = horizon * n_slots
-        self._inequality_matrix, ineq_pos = ineq.finalize((self.n_inequalities, n))
-        self._inequality_matrix.data[ineq_pos[col_slack_entries]] = 1.0
-        self._inequality_matrix.data[ineq_pos[safe_slack_entries]] = 1.0
-        self._coef_pos = ineq_pos[coef_entries]
+        self._inequality_matrix, self._coef_pos = _inequality_pattern(layout)
+        self.n_inequalities = self._inequality_matrix.shape[0]
         self._inequality_lower = np.zeros(self.n_inequalities)
-        self._safe_slack_idx = safe_slack_idx
-        self._col_slack_idx = col_slack_idx
+        self.variable_lower, self._variable_upper = _box_bounds(config, layout)
+        self.cost_matrix, self._cost_vector = _cost(config, layout)
+        self._two_q = 2.0 * np.asarray(config.weights.state, dtype=np.float64)
+        self._two_s = 2.0 * np.asarray(config.weights.input_rate, dtype=np.float64)
 
-        # --- variable boxes
-        self.variable_lower = np.full(n, -np.inf)
-        self._variable_upper = np.full(n, np.inf)
-        self.variable_lower[state_idx[1:, _LATERAL]] = config.lateral_bounds_m[0]
-        self._variable_upper[state_idx[1:, _LATERAL]] = config.lateral_bounds_m[1]
-        self.variable_lower[state_idx[1:, _SPEED]] = config.speed_bounds_m_s[0]
-        self._variable_upper[state_idx[1:, _SPEED]] = config.speed_bounds_m_s[1]
-        self.variable_lower[input_idx[:, 0]] = config.steering_bounds_rad[0]
-        self._variable_upper[input_idx[:, 0]] = config.steering_bounds_rad[1]
-        self.variable_lower[input_idx[:, 1]] = config.acceleration_bounds_m_s2[0]
-        self._variable_upper[input_idx[:, 1]] = config.acceleration_bounds_m_s2[1]
-        self.variable_lower[col_slack_idx] = 0.0
-        self.variable_lower[safe_slack_idx] = 0.0
-        self._variable_upper[safe_slack_idx] = 0.0  # set per step to h'(n) - 1
+        general = _general_form(self._equality_matrix, self._inequality_matrix, self.variable_lower,
+                                self._variable_upper)
+        self.boxed_variables = general.boxed_variables
+        self._general_matrix, self._general_lower, self._general_upper = general.matrix, general.lower, general.upper
+        self._gen_from_eq, self._gen_from_ineq = general.from_equality, general.from_inequality
+        self._safe_slack_box_rows = general.box_row_of_variable[self._safe_slack_idx]
+        self.variable_shift, self.general_row_shift = _shift_maps(layout, self.n_equalities, self.n_inequalities,
+                                                                  general)
+        self._allocate_stagewise_data()
+        self._sparse_values_stale = False
 
-        # --- cost
-        self._build_cost(col_slack_idx, safe_slack_idx)
-
-        # --- general form A = [E; G; I_box]
-        boxed = np.flatnonzero(np.isfinite(self.variable_lower) | np.isfinite(self._variable_upper))
-        self.boxed_variables = boxed
-        eq_coo = self._equality_matrix.tocoo()
-        ineq_coo = self._inequality_matrix.tocoo()
-        # tocoo of a canonical CSC enumerates data in storage order
-        rows = np.concatenate([eq_coo.row, ineq_coo.row + self.n_equalities,
-                               self.n_equalities + self.n_inequalities + np.arange(boxed.size)])
-        cols = np.concatenate([eq_coo.col, ineq_coo.col, boxed])
-        n_rows = self.n_equalities + self.n_inequalities + boxed.size
-        self._general_matrix, gen_pos = csc_with_positions(rows, cols, (n_rows, n))
-        n_eq_nnz = self._equality_matrix.nnz
-        n_ineq_nnz = self._inequality_matrix.nnz
-        self._gen_from_eq = gen_pos[:n_eq_nnz]
-        self._gen_from_ineq = gen_pos[n_eq_nnz:n_eq_nnz + n_ineq_nnz]
-        self._general_matrix.data[gen_pos[n_eq_nnz + n_ineq_nnz:]] = 1.0
-        self._general_lower = np.empty(n_rows)
-        self._general_upper = np.empty(n_rows)
-        box_rows = slice(self.n_equalities + self.n_inequalities, n_rows)
-        self._general_lower[box_rows] = self.variable_lower[boxed]
-        self._general_upper[box_rows] = self._variable_upper[boxed]
-        self._general_upper[self.n_equalities:self.n_equalities + self.n_inequalities] = np.inf
-        box_row_of_variable = np.full(n, -1)
-        box_row_of_variable[boxed] = self.n_equalities + self.n_inequalities + np.arange(
-            boxed.size)
-        self._safe_slack_box_rows = box_row_of_variable[safe_slack_idx]
-
-        # --- one-stage shift maps (warm starts): value of index i after the shift is taken from
-        # shift[i]; the last stage repeats itself
-        stage_of = np.minimum(np.arange(horizon + 1) + 1, horizon)
-        input_stage_of = np.minimum(np.arange(horizon) + 1, horizon - 1)
-        sigma_stage_of = np.minimum(np.arange(horizon) + 1, horizon - 1)
-        variable_shift = np.arange(n)
-        variable_shift[state_idx] = state_idx[stage_of]
-        variable_shift[input_idx] = input_idx[input_stage_of]
-        variable_shift[safe_slack_idx] = safe_slack_idx[sigma_stage_of]
-        self.variable_shift = variable_shift
-        eq_blocks = np.arange(self.n_equalities).reshape(horizon + 1, STATE_DIM)
-        ineq_blocks = np.arange(self.n_inequalities).reshape(horizon, n_slots)
-        row_shift = np.arange(n_rows)
-        row_shift[eq_blocks] = eq_blocks[stage_of]
-        row_shift[self.n_equalities + ineq_blocks] = self.n_equalities + ineq_blocks[
-            sigma_stage_of]
-        row_shift[box_rows] = box_row_of_variable[variable_shift[boxed]]
-        self.general_row_shift = row_shift
-
-        # --- stage-wise data of the last update (see class doc)
+    def _allocate_stagewise_data(self) -> None:
+        """The stage-wise data of the last update (class doc), zero until the first ``update``."""
+        horizon, n_slots = self.config.horizon, self.config.max_vehicles
         self.next_states = np.zeros((horizon, STATE_DIM))
         self.state_matrices = np.zeros((horizon, STATE_DIM, STATE_DIM))
         self.input_matrices = np.zeros((horizon, STATE_DIM, INPUT_DIM))
@@ -287,44 +389,6 @@ class LtvMpcQp:
         self.last_input = np.zeros(INPUT_DIM)
         self.tracking_reference = np.zeros((horizon + 1, STATE_DIM))
         self.linearization_inputs = np.zeros((horizon, INPUT_DIM))
-        self._sparse_values_stale = False
-
-    def _build_cost(self, col_slack_idx: np.ndarray, safe_slack_idx: np.ndarray) -> None:
-        config = self.config
-        weights = config.weights
-        horizon = config.horizon
-        n = self.layout.n_variables
-        state_weight = np.asarray(weights.state, dtype=np.float64)
-        input_weight = np.asarray(weights.input, dtype=np.float64)
-        rate_weight = np.asarray(weights.input_rate, dtype=np.float64)
-        rows: list[np.ndarray] = []
-        cols: list[np.ndarray] = []
-        values: list[np.ndarray] = []
-
-        def add(r, c, v):
-            r, c, v = np.broadcast_arrays(np.asarray(r), np.asarray(c), np.asarray(v, float))
-            rows.append(r.ravel())
-            cols.append(c.ravel())
-            values.append(v.ravel())
-
-        states = self._state_idx[1:]
-        add(states, states, np.broadcast_to(2.0 * state_weight, states.shape))
-        inputs = self._input_idx
-        # backward rate terms: every u_k has one (u_0 against u_hat); forward: all but the last
-        forward = (np.arange(horizon) < horizon - 1).astype(float)[:, None]
-        diag = 2.0 * input_weight[None, :] + 2.0 * rate_weight[None, :] * (1.0 + forward)
-        add(inputs, inputs, diag)
-        add(inputs[:-1], inputs[1:], np.broadcast_to(-2.0 * rate_weight, inputs[1:].shape))
-        add(col_slack_idx, col_slack_idx, 2.0 * weights.collision_slack_quadratic)
-        add(safe_slack_idx, safe_slack_idx, 2.0 * weights.safety_slack_quadratic)
-        r, c = np.concatenate(rows), np.concatenate(cols)
-        self.cost_matrix, positions = csc_with_positions(r, c, (n, n))
-        self.cost_matrix.data[positions] = np.concatenate(values)
-        self._cost_vector = np.zeros(n)
-        self._cost_vector[col_slack_idx] = weights.collision_slack_linear
-        self._cost_vector[safe_slack_idx] = weights.safety_slack_linear
-        self._two_q = 2.0 * state_weight
-        self._two_s = 2.0 * rate_weight
 
     @property
     def n_variables(self) -> int:
@@ -370,6 +434,11 @@ class LtvMpcQp:
         self.last_input[:] = last_input
         self.tracking_reference[:] = tracking_reference
         self.linearization_inputs[:] = lin_inputs
+        self._sparse_values_stale = True
+
+    def stagewise_data_changed(self) -> None:
+        """Mark the stage-wise data as written in place (as ``update`` does): the sparse forms resync their values
+        on their next access."""
         self._sparse_values_stale = True
 
     def _sync_sparse_values(self) -> None:

@@ -38,6 +38,10 @@ STATE_DIM = 4
 """(x [m], y [m], heading psi [rad], speed v [m/s])"""
 INPUT_DIM = 2
 """(steering delta [rad], acceleration a [m/s^2])"""
+LATERAL_INDEX = 1
+"""Index of the lateral position y [m] in the state x."""
+SPEED_INDEX = 3
+"""Index of the speed v [m/s] in the state x."""
 
 VEHICLE_LENGTH_M = VEHICLE_LENGTH
 """Ego length [m] (the scenario's, highway-env ``Vehicle.LENGTH``)."""
@@ -169,9 +173,10 @@ def _discrete_step_with_jacobians(state, control, h, n_substeps, half_length, v_
 
 
 @numba.njit(cache=True)
-def _linearize_horizon(states, controls, h, n_substeps, half_length, v_max, v_min,
-                       next_states, state_matrices, input_matrices, affine_offsets):
-    """Per stage: f(x_k, u_k), A_k, B_k and c_k = f(x_k, u_k) - A_k x_k - B_k u_k."""
+def linearize_horizon(states, controls, h, n_substeps, half_length, v_max, v_min,
+                      next_states, state_matrices, input_matrices, affine_offsets):
+    """Per stage: f(x_k, u_k), A_k, B_k and c_k = f(x_k, u_k) - A_k x_k - B_k u_k, the model's arguments
+    (h, n_substeps, l / 2, v_max, v_min) as in ``KinematicBicycle.kernel_args``."""
     for k in range(controls.shape[0]):
         _discrete_step_with_jacobians(states[k], controls[k], h, n_substeps, half_length, v_max,
                                       v_min, next_states[k], state_matrices[k],
@@ -186,7 +191,9 @@ def _linearize_horizon(states, controls, h, n_substeps, half_length, v_max, v_mi
 
 
 @numba.njit(cache=True)
-def _rollout(initial_state, controls, h, n_substeps, half_length, v_max, v_min, states):
+def rollout_horizon(initial_state, controls, h, n_substeps, half_length, v_max, v_min, states):
+    """States x_0..x_N (N + 1, 4) into ``states`` from x_0 under the inputs u_0..u_{N-1} (N, 2), the model's
+    arguments as in ``KinematicBicycle.kernel_args``."""
     states[0] = initial_state
     jx = np.empty((4, 4))
     ju = np.empty((4, 2))
@@ -213,8 +220,10 @@ class KinematicBicycle:
     def __init__(self, parameters: BicycleParameters | None = None) -> None:
         self.parameters = parameters or BicycleParameters()
         p = self.parameters
-        self._args = (p.substep_s, p.n_substeps, p.length_m / 2.0, p.max_speed_m_s,
-                      p.min_speed_m_s)
+        self.kernel_args = (p.substep_s, p.n_substeps, p.length_m / 2.0, p.max_speed_m_s,
+                            p.min_speed_m_s)
+        """The compiled kernels' model arguments (h, n_substeps, l / 2, v_max, v_min) (``linearize_horizon``,
+        ``rollout_horizon``)."""
 
     def step(self, state: np.ndarray, control: np.ndarray) -> np.ndarray:
         """x_{k+1} = f(x_k, u_k) for one control period; shape (4,)."""
@@ -230,7 +239,7 @@ class KinematicBicycle:
         next_state = np.empty(STATE_DIM)
         transition_state_matrix = np.empty((STATE_DIM, STATE_DIM))
         transition_input_matrix = np.empty((STATE_DIM, INPUT_DIM))
-        _discrete_step_with_jacobians(state, control, *self._args, next_state,
+        _discrete_step_with_jacobians(state, control, *self.kernel_args, next_state,
                                       transition_state_matrix, transition_input_matrix)
         return next_state, transition_state_matrix, transition_input_matrix
 
@@ -264,8 +273,8 @@ class KinematicBicycle:
             input_matrices = np.empty((horizon, STATE_DIM, INPUT_DIM))
         if affine_offsets is None:
             affine_offsets = np.empty((horizon, STATE_DIM))
-        _linearize_horizon(states, controls, *self._args, next_states, state_matrices,
-                           input_matrices, affine_offsets)
+        linearize_horizon(states, controls, *self.kernel_args, next_states, state_matrices,
+                          input_matrices, affine_offsets)
         return next_states, state_matrices, input_matrices, affine_offsets
 
     def rollout(self, initial_state: np.ndarray, controls: np.ndarray) -> np.ndarray:
@@ -273,5 +282,5 @@ class KinematicBicycle:
         initial_state = _as_float_array(initial_state, (STATE_DIM,))
         controls = _as_float_array(controls, (INPUT_DIM,))
         states = np.empty((controls.shape[0] + 1, STATE_DIM))
-        _rollout(initial_state, controls, *self._args, states)
+        rollout_horizon(initial_state, controls, *self.kernel_args, states)
         return states

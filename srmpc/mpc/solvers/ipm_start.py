@@ -1,7 +1,12 @@
-"""The Riccati interior point (``riccati_interior_point``) warm-started from the shifted previous solution.
+"""The interior point's starting points (``interior_point``): cold, and warm from the shifted previous solution.
 
-Consecutive planner QPs differ by one control period, so the previous solution, shifted by one stage,
-is close to the new one. When the previous solve succeeded, the start is:
+Cold start (``cold_start``): the inputs ``initial_inputs`` (N, 2) clipped into their box, ``INITIAL_INPUT_MARGIN``
+of its width from the bounds; the states rolled out from x_hat through the linear dynamics (so every iterate
+satisfies them exactly and the Newton steps are homogeneous in them); s = 0; sigma = sigma_hi / 2 where its box
+is open, else 0; t_0 = max(a^T w_0 - b, ``INITIAL_SLACK``), z_0 = ``INITIAL_MULTIPLIER``.
+
+Warm start (``warm_start``). Consecutive planner QPs differ by one control period, so the previous solution,
+shifted by one stage, is close to the new one. When the previous solve succeeded, the start is:
 
 1. primal: the previous inputs shifted, u = (u_1, ..., u_{N-1}, u_{N-1}), clipped as the cold start
    clips them and rolled out from x_hat through the new linear dynamics (every iterate keeps satisfying
@@ -16,9 +21,8 @@ is close to the new one. When the previous solve succeeded, the start is:
    ``WARM_CENTRALITY`` mu_0 (z_i raised) with mu_0 = max(mean t z, ``WARM_START_MU``), so the
    iterations start from a well-centred point of complementarity about mu_0.
 
-Safeguard: if the warm-started iterations do not reach ``STATUS_SOLVED``, the QP is solved again from the
-cold start (the reported iterations are then the sum). A failed or absent previous solution (new episode,
-a fallback step) means the cold start.
+The memory of the last solved QP (``WarmStartMemory``) is kept by ``remember``; the solves that use both
+starts are ``interior_point.solve_in`` and ``solve_cold_in``.
 """
 
 from __future__ import annotations
@@ -28,14 +32,14 @@ from collections import namedtuple
 import numba
 import numpy as np
 
-from srmpc.mpc.riccati_interior_point import (
-    STATUS_SOLVED,
-    _constraint_values,
-    _starting_point,
-    cold_start,
-    iterate,
-    prepare_inequalities,
-)
+from srmpc.mpc.solvers.ipm_workspace import constraint_values
+
+INITIAL_SLACK = 1.0
+"""Lower bound on the starting inequality slacks t_0 = max(a^T w_0 - b, .) (constraint units)."""
+INITIAL_MULTIPLIER = 100.0
+"""Starting inequality multipliers z_0 (objective units per constraint unit)."""
+INITIAL_INPUT_MARGIN = 0.01
+"""The starting inputs keep this fraction of their box width from its bounds (dimensionless)."""
 
 WARM_START_MU = 1e-1
 """Lowest complementarity mu_0 of a warm start (objective units): lower stalls the shifted point."""
@@ -45,7 +49,7 @@ WARM_SLACK_FLOOR = 1e-1
 """Smallest starting slack t_i of a warm start (constraint units)."""
 
 WARM_START_SETTINGS = (WARM_START_MU, WARM_CENTRALITY, WARM_SLACK_FLOOR)
-"""The warm start's (mu_0 floor, centrality fraction, slack floor), ``solve_in``'s ``settings``."""
+"""The warm start's (mu_0 floor, centrality fraction, slack floor), ``interior_point.solve_in``'s ``settings``."""
 
 WarmStartMemory = namedtuple("WarmStartMemory", ["inputs", "slacks", "sigmas", "z", "valid"])
 """The last solved QP's inputs (N, 2), slacks (V,), sigmas (N, V), multipliers z (m,); valid (1,) bool:
@@ -56,6 +60,66 @@ def allocate_memory(horizon: int, n_slots: int, n_inequalities: int) -> WarmStar
     """An empty (invalid) memory for an (N, V) QP with m inequalities."""
     return WarmStartMemory(np.zeros((horizon, 2)), np.zeros(n_slots), np.zeros((horizon, n_slots)),
                            np.zeros(n_inequalities), np.zeros(1, dtype=np.bool_))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _starting_point(qp, measured_state, initial_inputs, has_sigma, point):
+    """Write the starting point w_0 into ``point``.
+
+    Inputs: ``initial_inputs`` (N, 2) clipped into their box, ``INITIAL_INPUT_MARGIN`` of its
+    width from the bounds; states rolled out from x_hat through the linear dynamics (so every
+    iterate satisfies them exactly and the Newton steps are homogeneous in them); s = 0;
+    sigma = sigma_hi / 2 where its box is open, else 0.
+    """
+    states, inputs, slacks, sigmas = point
+    state_matrices, input_matrices, affine_offsets = (qp.state_matrices, qp.input_matrices,
+                                                      qp.affine_offsets)
+    bounds = qp.bounds
+    sigma_upper = qp.sigma_upper
+    horizon = state_matrices.shape[0]
+    n_slots = qp.coefficients.shape[1]
+    for k in range(horizon):
+        for i in range(2):
+            lo = bounds[4 + i]
+            hi = bounds[6 + i]
+            margin = INITIAL_INPUT_MARGIN * (hi - lo)
+            inputs[k, i] = min(max(initial_inputs[k, i], lo + margin), hi - margin)
+    for a in range(4):
+        states[0, a] = measured_state[a]
+    for k in range(horizon):
+        for r in range(4):
+            acc = affine_offsets[k, r]
+            for c in range(4):
+                acc += state_matrices[k, r, c] * states[k, c]
+            acc += input_matrices[k, r, 0] * inputs[k, 0] + input_matrices[k, r, 1] * inputs[k, 1]
+            states[k + 1, r] = acc
+    for j in range(n_slots):
+        slacks[j] = 0.0
+        for k in range(horizon):
+            sigmas[k, j] = 0.5 * sigma_upper[k, j] if has_sigma[k, j] else 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _starting_inequalities(qp, point, ineq):
+    """The cold start of the inequalities: a^T w_0 - b, t_0 = max(a^T w_0 - b, ``INITIAL_SLACK``)
+    and z_0 = ``INITIAL_MULTIPLIER`` where active (t = 1, z = 0 elsewhere)."""
+    values, active, t, z = ineq.values, ineq.active, ineq.t, ineq.z
+    constraint_values(point.states, point.inputs, point.slacks, point.sigmas, qp.coefficients,
+                      qp.row_lower, qp.sigma_upper, qp.bounds, ineq.offsets, values)
+    for i in range(values.shape[0]):
+        if active[i]:
+            t[i] = max(values[i], INITIAL_SLACK)
+            z[i] = INITIAL_MULTIPLIER
+        else:
+            t[i] = 1.0
+            z[i] = 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def cold_start(qp, measured_state, initial_inputs, ineq, point):
+    """The cold start (module doc; ``_starting_point``, ``_starting_inequalities``) into point and ineq."""
+    _starting_point(qp, measured_state, initial_inputs, ineq.has_sigma, point)
+    _starting_inequalities(qp, point, ineq)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -95,8 +159,8 @@ def _warm_inequalities(qp, memory, point, ineq, settings):
     horizon, n_slots = qp.coefficients.shape[0], qp.coefficients.shape[1]
     mu_floor, centrality, slack_floor = settings
     values, active, t, z = ineq.values, ineq.active, ineq.t, ineq.z
-    _constraint_values(point.states, point.inputs, point.slacks, point.sigmas, qp.coefficients,
-                       qp.row_lower, qp.sigma_upper, qp.bounds, ineq.offsets, values)
+    constraint_values(point.states, point.inputs, point.slacks, point.sigmas, qp.coefficients,
+                      qp.row_lower, qp.sigma_upper, qp.bounds, ineq.offsets, values)
     _shift_multipliers(ineq.offsets, horizon, n_slots, memory.z, z)
     complementarity = 0.0
     for i in range(values.shape[0]):
@@ -114,7 +178,7 @@ def _warm_inequalities(qp, memory, point, ineq, settings):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _remember(point, ineq, memory):
+def remember(point, ineq, memory):
     """Keep a solved QP's inputs, slacks, sigmas and multipliers for the next warm start."""
     memory.inputs[:, :] = point.inputs
     memory.slacks[:] = point.slacks
@@ -124,32 +188,8 @@ def _remember(point, ineq, memory):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def solve_in(measured_state, qp, initial_inputs, tolerance, max_iterations, workspace, memory,
-             warm, settings=WARM_START_SETTINGS):
-    """Solve a ``qp_tuple`` in an ``allocate_workspace``, warm if ``warm`` and ``memory`` is valid, else
-    from the cold start about ``initial_inputs`` (as ``solve_ltv_mpc_qp``).
-
-    ``settings``: ``WARM_START_SETTINGS``. Returns (status, iterations, started warm); the solution is in
-    ``workspace[0]``, and in ``memory`` for the next call if solved.
-    """
-    point, arrays, gradients, newton, direction = workspace
-    iterations = 0
-    started_warm = warm and memory.valid[0]
-    if started_warm:
-        ineq = prepare_inequalities(qp, workspace)
-        _warm_primal(qp, measured_state, memory, ineq.has_sigma, direction.inputs, point)
-        _warm_inequalities(qp, memory, point, ineq, settings)
-        status, iterations = iterate(qp, point, ineq, gradients, newton, direction, tolerance,
-                                     max_iterations)
-        if status == STATUS_SOLVED:
-            _remember(point, ineq, memory)
-            return status, iterations, True
-    ineq = prepare_inequalities(qp, workspace)
-    cold_start(qp, measured_state, initial_inputs, ineq, point)
-    status, cold_iterations = iterate(qp, point, ineq, gradients, newton, direction, tolerance,
-                                      max_iterations)
-    if status == STATUS_SOLVED:
-        _remember(point, ineq, memory)
-    else:
-        memory.valid[0] = False
-    return status, iterations + cold_iterations, started_warm
+def warm_start(qp, measured_state, memory, ineq, point, shifted_inputs, settings):
+    """The warm start (module doc; ``_warm_primal``, ``_warm_inequalities``) from a valid ``memory`` into point and
+    ineq; ``shifted_inputs`` (N, 2) is scratch, ``settings`` ``WARM_START_SETTINGS``."""
+    _warm_primal(qp, measured_state, memory, ineq.has_sigma, shifted_inputs, point)
+    _warm_inequalities(qp, memory, point, ineq, settings)

@@ -1,10 +1,10 @@
-"""The NMPC plan's KKT residual with multipliers: how far a plan is from a KKT point of the NLP (``nmpc``).
+"""The NMPC plan's KKT residual with multipliers: how far a plan is from a KKT point of the NLP (``sqp``).
 
-``nmpc``'s convergence test (theta_inf <= 1e-6 and ||p||_inf <= 1e-4) is a proxy: it uses no multipliers and no
+``sqp``'s convergence test (theta_inf <= 1e-6 and ||p||_inf <= 1e-4) is a proxy: it uses no multipliers and no
 scaling. This module measures the NLP's first-order conditions themselves at the returned plan w, with the
 multipliers of the last QP subproblem.
 
-The NLP (``nmpc``'s module doc) with its inequalities written c_i(w) >= 0:
+The NLP (``sqp``'s module doc) with its inequalities written c_i(w) >= 0:
 
     collision  c_kj = g_kj(x_k) + s_j - 1,   safety  c'_kj = g'_kj(x_k) + s'_j + sigma_kj - 1   (k = 1..N, j < V),
     s_j >= 0,  s'_j >= 0,  sigma_kj >= 0,  y and v boxes on x_1..N,  delta and a boxes on u_0..N-1,
@@ -18,10 +18,10 @@ The NLP (``nmpc``'s module doc) with its inequalities written c_i(w) >= 0:
 Multipliers:
 
 - z: the inequality multipliers of the last QP the SQP solved (the Riccati interior point's z at its solution,
-  read from its workspace by ``nmpc_kernels.subproblem_multipliers``). The QP's rows are the NLP's
+  read from its workspace by ``solvers.compact_multipliers``). The QP's rows are the NLP's
   constraints linearized at the last iterate with the same sign convention, so its z are the NLP's multiplier
   estimates, row by row. The QP's box sigma <= ``SAFETY_SLACK_UPPER`` is no NLP constraint: its multiplier is left
-  out (it shows in the stationarity if it is not 0). A screened vehicle's rows (``nmpc``'s module doc) get
+  out (it shows in the stationarity if it is not 0). A screened vehicle's rows (``sqp``'s module doc) get
   z = 0, and its slacks' bounds the multipliers that make their stationarity exact (w_col,1 + 2 w_col,2 s and
   w_safe,1 + 2 w_safe,2 sigma; its slacks are 0, so their complementarity holds).
 - nu: the adjoint recursion
@@ -29,14 +29,14 @@ Multipliers:
       nu_N = grad_{x_N} F - sum_i z_i grad_{x_N} c_i,   nu_k = grad_{x_k} F - sum_i z_i grad_{x_k} c_i + A_k^T nu_{k+1},
 
   with A_k, B_k = df/d(x, u) at (x_k, u_k) of w: it makes the stationarity in x_1..N exact, as the Riccati solver
-  recovers its own nu (``riccati_interior_point``'s dual residual). The Jacobians are evaluated at w, not at the
+  recovers its own nu (``solvers.ipm_iteration``'s dual residual). The Jacobians are evaluated at w, not at the
   QP's linearization point; grad g is the closest circle's (``linearize_ellipse_rows``).
 
 Residuals (unscaled):
 
     r_d = || grad_{u, s, s', sigma} L(w, nu, z) ||_inf       (stationarity; objective units per variable unit)
     r_c = max_i |z_i c_i(w)|                                  (complementarity; objective units)
-    r_p = theta_inf(w)                                        (primal infeasibility, ``nmpc_kernels.infeasibility``)
+    r_p = theta_inf(w)                                        (primal infeasibility, ``sqp_kernels.infeasibility``)
 
 and IPOPT's overall NLP error (Waechter & Biegler 2006, eq. 5), with s_max = 100, n_E = 4 N equality and n_I
 inequality multipliers:
@@ -56,8 +56,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from srmpc.mpc.nmpc_kernels import linearize_dynamics, point_parts, subproblem_multipliers
-from srmpc.mpc.nonlinear_constraints import linearize_ellipse_rows
+from srmpc.mpc.nmpc.nonlinear_constraints import linearize_ellipse_rows
+from srmpc.mpc.nmpc.sqp_kernels import linearize_dynamics, point_parts
+from srmpc.mpc.solvers import compact_multipliers
 
 SCALE_THRESHOLD = 100.0
 """s_max of IPOPT's error scaling (its option ``s_max``, default 100; multiplier units)."""
@@ -136,12 +137,12 @@ def _input_gradient(inputs, last_input, r, s, k, c):
 def kkt_residuals(w, n_obs, last_input, tracking_reference, frames, constants, workspace, n_rows, sigma_upper,
                   collision_rows, safety_rows):
     """(r_d, r_c, ||nu||_1 + ||z||_1, ||z||_1, n_E, n_I) of the module doc at the plan w, with the multipliers of
-    the last QP in the Riccati solver's ``workspace`` (``solve_subproblem``'s, n_rows rows, the row vehicles and
+    the last QP in the Riccati solver's ``workspace`` (``solvers.solve_compact``'s, n_rows rows, the row vehicles and
     sigma_hi in the subproblem's arrays)."""
     horizon = tracking_reference.shape[0] - 1
     states, inputs, slacks, sigmas = point_parts(w, horizon, n_obs)
     weights, q, r, s = constants.slack_weights, constants.state_weight, constants.input_weight, constants.rate_weight
-    z, offsets = subproblem_multipliers(workspace, n_rows)
+    z, offsets = compact_multipliers(workspace, n_rows)
     z_collision, z_safety, z_sigmas = np.empty((horizon, n_obs)), np.empty((horizon, n_obs)), np.empty((horizon, n_obs))
     z_slacks = np.empty(2 * n_obs)
     _nlp_multipliers(z, offsets, n_rows, n_obs, sigma_upper, collision_rows, safety_rows, slacks, sigmas, weights,

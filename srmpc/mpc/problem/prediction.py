@@ -29,7 +29,8 @@ class TrafficPredictor(Protocol):
 
 
 @numba.njit(cache=True)
-def _constant_velocity_rollout(others, horizon, control_period_s, predicted):
+def constant_velocity_rollout(others, horizon, control_period_s, predicted):
+    """``predict_constant_velocity`` of ``others`` (V, 4) into ``predicted`` (N + 1, V, 4) (module doc)."""
     for j in range(others.shape[0]):
         x, y, heading, speed = others[j, 0], others[j, 1], others[j, 2], others[j, 3]
         velocity_x = speed * np.cos(heading)
@@ -48,7 +49,7 @@ def predict_constant_velocity(
     """Constant-velocity, constant-heading prediction (see module doc); (N + 1, V, 4)."""
     others = np.ascontiguousarray(others, dtype=np.float64).reshape(-1, 4)
     predicted = np.empty((horizon + 1, others.shape[0], 4))
-    _constant_velocity_rollout(others, int(horizon), float(control_period_s), predicted)
+    constant_velocity_rollout(others, int(horizon), float(control_period_s), predicted)
     return predicted
 
 

@@ -12,7 +12,7 @@ nonlinear problem instead (SRMPC's ``best_of_two`` picks by it, as AC4MPC does f
         + sum_k (w_col,1 b_k + w_col,2 b_k^2),      b_k = violation of the y and v bounds [m, m/s]
 
 g_kj is the exact ellipse norm of the ego's closest circle to vehicle j at stage k (< 1 inside the
-collision ellipse), g'_kj the same for the larger safety region (``collision.collision_norms``).
+collision ellipse), g'_kj the same for the larger safety region (``collision_constraints.collision_norms``).
 The slacks are measured as ellipse-norm deficits, the QP's as linearized support distances: the
 penalty weights are the QP's, the units differ, which is immaterial for ranking two plans.
 """
@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from srmpc.mpc.collision import collision_norms
-from srmpc.mpc.ocp import OcpConfig
-from srmpc.mpc.vehicle_model import KinematicBicycle
+from srmpc.mpc.problem.collision_constraints import collision_norms
+from srmpc.mpc.problem.ocp import OcpConfig
+from srmpc.mpc.problem.vehicle_model import KinematicBicycle
 
 
 def _penalty(violation: np.ndarray, linear: float, quadratic: float) -> float:

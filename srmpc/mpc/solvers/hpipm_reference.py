@@ -48,14 +48,14 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from srmpc.mpc.hpipm_native import (
+from srmpc.mpc.solvers.hpipm_native import (
     HPIPM_MAX_ITERATIONS,
     HPIPM_MODE,
     HPIPM_MU0,
     HPIPM_STATIONARITY_TOLERANCE,
     HPIPM_TOLERANCE,
 )
-from srmpc.mpc.hpipm_stagewise import StagewiseQp
+from srmpc.mpc.solvers.hpipm_stagewise import StagewiseQp
 
 CASADI_INFINITY = 1e4
 """What CasADi puts in place of an infinite bound (option ``inf``), in the bounded quantity's units (m,
