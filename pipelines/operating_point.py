@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from pathlib import Path
 
 import pandas as pd
@@ -62,6 +61,7 @@ from pipelines.reporting import (
     PAPER,
     by_method,
     ci,
+    cut_with_ci,
     difference,
     evaluations,
     method_row,
@@ -156,13 +156,6 @@ def cut_of(ratio: dict) -> tuple[float | None, tuple[float, float]]:
     return (None if ratio["ratio"] is None else 1 - ratio["ratio"]), (1 - high, 1 - low)
 
 
-def percent(cut: float | None, interval: tuple[float, float]) -> str:
-    """A cut as "80% [76%, 83%]" (-inf: "unbounded")."""
-    def one(value: float) -> str:
-        return "unbounded" if math.isinf(value) else f"{value:.0%}"
-    return f"{'n/a' if cut is None else one(cut)} [{one(interval[0])}, {one(interval[1])}]"
-
-
 def claims(rows: dict, traffic: str) -> list[dict]:
     """The Results section's claims at one planner, from the paired differences (same seeds)."""
     s, out = rows["srmpc"], []
@@ -174,10 +167,11 @@ def claims(rows: dict, traffic: str) -> list[dict]:
                                       for m in ("ltv_mpc", "ppo_lsi"))})
     ltv = rows["ltv_mpc"]["mean_event_cost"]
     paper_cut = 1 - PAPER[(traffic, "srmpc")][2] / PAPER[(traffic, "ltv_mpc")][2]
-    cut, cut_ci = cut_of(s["paired_ratios"]["ltv_mpc"]["mean_event_cost"])
+    ratio = s["paired_ratios"]["ltv_mpc"]["mean_event_cost"]
+    cut, cut_ci = cut_of(ratio)
     out.append({"traffic": traffic, "claim": f"SRMPC cuts J_c against LTV-MPC by {paper_cut:.0%} (the paper's table)",
                 "verdict": "n/a (LTV-MPC J_c 0)" if cut is None else
-                f"ours: {percent(cut, cut_ci)}; the paper's {paper_cut:.0%} {verdict(paper_cut, cut_ci)} our CI",
+                f"ours: {cut_with_ci(ratio)}; the paper's {paper_cut:.0%} {verdict(paper_cut, cut_ci)} our CI",
                 "evidence": f"J_c {s['mean_event_cost']:.3f} vs {ltv:.3f} (cut: 1 - the ratio of J_c on the same "
                             "seeds, bootstrap CI)"})
     if traffic == "light":
@@ -196,8 +190,9 @@ def claims(rows: dict, traffic: str) -> list[dict]:
                         "verdict": "holds" if all(low > threshold for low, _ in bounds) else
                         "fails" if any(high < threshold for _, high in bounds) else
                         "not shown (a cut's CI contains the threshold)",
-                        "evidence": f"J_c cut {percent(*cuts['mean_event_cost'])} ({s['mean_event_cost']:.3f} vs "
-                                    f"{rows[m]['mean_event_cost']:.3f}), rho_c cut {percent(*cuts['cost_rate'])} "
+                        "evidence": f"J_c cut {cut_with_ci(s['paired_ratios'][m]['mean_event_cost'])} "
+                                    f"({s['mean_event_cost']:.3f} vs {rows[m]['mean_event_cost']:.3f}), rho_c cut "
+                                    f"{cut_with_ci(s['paired_ratios'][m]['cost_rate'])} "
                                     f"({s['cost_rate']:.4f} vs {rows[m]['cost_rate']:.4f}); a cut is 1 - the ratio "
                                     "on the same seeds, a negative cut a rise"})
     else:

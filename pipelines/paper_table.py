@@ -27,6 +27,7 @@ from pipelines.reporting import (
     PAPER,
     by_method,
     ci,
+    cut_with_ci,
     evaluations,
     method_row,
     paper_row,
@@ -69,16 +70,6 @@ def claims(traffic: dict, level: str) -> list[str]:
     return lines
 
 
-def cut_text(r: dict) -> str:
-    """A paired ratio (``confidence_intervals.paired_ratios``) as the cut it makes: "96% lower [91%, 99%]"; an
-    unbounded ratio (the denominator can vanish) is said so."""
-    if r["ratio"] is None:
-        return "no finite ratio (the other's value is 0)"
-    low, high = r["ratio_ci95"]
-    upper = "no lower bound" if high == float("inf") else f"{1 - high:.0%}"
-    return f"{1 - r['ratio']:.0%} lower [{upper}, {1 - low:.0%}]"
-
-
 def _sign(low: float, high: float) -> int:
     """+1 / -1 when a 95% CI lies above / below 0, 0 when it contains 0."""
     return 1 if low > 0 else -1 if high < 0 else 0
@@ -116,7 +107,7 @@ def performance_claims(traffic: dict, level: str) -> list[str]:
             for key, name in (("mean_event_cost", "J_c"), ("cost_rate", "rho_c")):
                 r = s["paired_ratios"][m][key]
                 low, high = r["ratio_ci95"]
-                parts.append(f"{name} {s[key]:.4g} vs {traffic[m][key]:.4g}, {cut_text(r)}")
+                parts.append(f"{name} {s[key]:.4g} vs {traffic[m][key]:.4g}, {cut_with_ci(r, 'lower')}")
                 signs.append(1 if high < 1 - threshold else -1 if low > 1 - threshold else 0)
             verdict = ("holds" if all(x > 0 for x in signs) else "does not hold" if any(x < 0 for x in signs)
                        else "not shown (a CI reaches the threshold)")

@@ -8,6 +8,7 @@ bootstrap settings, and how a report is written.
 - :data:`PAPER`: the paper's Table "Evaluation results";
 - :func:`method_row`, :func:`row_with_intervals`, :func:`paper_row`, :func:`ci`: a method's row, read and printed;
 - :func:`difference`, :func:`sign`: a paired difference printed, and which side of 0 its CI lies on;
+- :func:`cut_with_ci`: a paired ratio printed as the reduction it makes;
 - :func:`write_outputs`: each report file written atomically.
 
 Every interval uses the bootstrap of ``srmpc.confidence_intervals`` (``BOOTSTRAP_RESAMPLES``,
@@ -20,6 +21,7 @@ cross-check (``crosscheck``) and ``table_vs_revision`` all read these from here.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -133,6 +135,18 @@ def difference(d: dict, key: str, digits: int, negate: bool = False) -> str:
     f = -1.0 if negate else 1.0
     low, high = sorted((f * d[f"{key}_ci95"][0], f * d[f"{key}_ci95"][1]))
     return f"{f * d[key]:+.{digits}f} [{low:+.{digits}f}, {high:+.{digits}f}]"
+
+
+def cut_with_ci(ratio: dict, word: str = "") -> str:
+    """The reduction 1 - a / b of a paired ratio (an entry of ``confidence_intervals.paired_ratios``) with its 95% CI
+    in percent, "80% [76%, 83%]" (``word`` after the point estimate: "96% lower [88%, 100%]"); "n/a" when there is no
+    finite ratio, "unbounded" at the end where the ratio has no upper bound."""
+    def percent(value: float) -> str:
+        return "unbounded" if math.isinf(value) else f"{value:.0%}"
+
+    low, high = ratio["ratio_ci95"]
+    point = "n/a" if ratio["ratio"] is None else percent(1 - ratio["ratio"])
+    return f"{point}{' ' + word if word else ''} [{percent(1 - high)}, {percent(1 - low)}]"
 
 
 def method_row(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame]:

@@ -37,6 +37,7 @@ import pandas as pd
 from pipelines.reporting import (
     METHODS,
     PAPER,
+    cut_with_ci,
     evaluations,
     method_of,
     method_row,
@@ -239,15 +240,6 @@ def ratio_text(r: dict) -> str:
     return f"{r['ratio']:.3f} [{low:.3f}, {high:.3f}]" + (f": {bound}" if bound else "")
 
 
-def reduction(r: dict) -> str:
-    """1 - ratio of a paired ratio as a cut with its CI: "80% [76%, 84%]"."""
-    if r["mean_event_cost"]["ratio"] is None:
-        return "- (the other's J_c is 0)"
-    low, high = r["mean_event_cost"]["ratio_ci95"]
-    upper = "unbounded" if high == float("inf") else f"{1 - high:.0%}"
-    return f"{1 - r['mean_event_cost']['ratio']:.0%} [{upper}, {1 - low:.0%}]"
-
-
 def why(p: dict, goal: dict) -> str:
     """Each axis of a goal against point ``p``: ``J_c 0.001 ≤ 0.006; v_x 23.98 < 24.10``."""
     cost, vx = p["mean_event_cost"], p["mean_vx"]
@@ -335,7 +327,8 @@ def markdown(report: dict) -> str:
         if o["srmpc"] is not None and o.get("reduction") is not None:
             d = o["paired_difference"]
             lines.append(f"SRMPC at the same setting: J_c {ci(o['srmpc'], 'mean_event_cost', 3)}, v_x "
-                         f"{ci(o['srmpc'], 'mean_vx', 2)}; J_c reduced by {reduction(o['ratio'])} (paper: "
+                         f"{ci(o['srmpc'], 'mean_vx', 2)}; J_c reduced by "
+                         f"{cut_with_ci(o['ratio']['mean_event_cost'])} (paper: "
                          f"{o['paper_reduction']:.0%}), paired ΔJ_c {d['mean_event_cost']:+.3f} "
                          f"[{d['mean_event_cost_ci95'][0]:+.3f}, {d['mean_event_cost_ci95'][1]:+.3f}].")
         c = r.get("confirmation")

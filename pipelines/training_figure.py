@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from srmpc.agents.report import read_metrics, summarize_training
+from srmpc.agents.report import final_window, read_metrics, summarize_training
 from srmpc.confidence_intervals import rate_ratio_interval, t_interval
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -95,14 +95,12 @@ CLAIM_RULE = ("holds when the 95% CI of the cost-rate ratio (constrained agent /
 
 
 def tail_counts(rows: list[dict[str, float]], last_fraction: float) -> dict:
-    """Over the last ``last_fraction`` of the frames (``summarize_training``'s window): the event count, the env
-    steps, and each iteration's mean return of the episodes that ended in it (iterations with none left out)."""
-    final = rows[-1]["frames"]
-    batch = {r["frames"]: r["frames"] - p["frames"] for p, r in zip([{"frames": 0.0}, *rows[:-1]], rows, strict=True)}
-    tail = [r for r in rows if r["frames"] > (1.0 - last_fraction) * final] or rows[-1:]
-    return {"events": int(round(sum(r["cost_rate"] * batch[r["frames"]] for r in tail))),
-            "steps": float(sum(batch[r["frames"]] for r in tail)),
-            "returns": [r["episode/return"] for r in tail if r["episodes"] > 0]}
+    """Over ``summarize_training``'s final window: the event count, the env steps, and each iteration's mean return
+    of the episodes that ended in it (iterations with none left out)."""
+    window = final_window(rows, last_fraction)
+    return {"events": int(round(sum(r["cost_rate"] * frames for r, frames in window))),
+            "steps": float(sum(frames for _, frames in window)),
+            "returns": [r["episode/return"] for r, _ in window if r["episodes"] > 0]}
 
 
 def welch_interval(a: list[float], b: list[float], confidence: float = 0.95) -> tuple[float, float]:

@@ -13,6 +13,16 @@ def read_metrics(path: Path) -> list[dict[str, float]]:
         return [{k: float(v) if v != "" else math.nan for k, v in row.items()} for row in csv.DictReader(handle)]
 
 
+def final_window(rows: list[dict[str, float]], last_fraction: float) -> list[tuple[dict[str, float], float]]:
+    """The iterations in the last ``last_fraction`` of the frames (at least the last one), each with the env steps
+    of its batch (its frames minus the previous iteration's)."""
+    final_frames = rows[-1]["frames"]
+    batch_frames = [r["frames"] - p["frames"] for p, r in zip([{"frames": 0.0}, *rows[:-1]], rows, strict=True)]
+    start = (1.0 - last_fraction) * final_frames
+    window = [(r, f) for r, f in zip(rows, batch_frames, strict=True) if r["frames"] > start]
+    return window or [(rows[-1], batch_frames[-1])]
+
+
 def summarize_training(rows: list[dict[str, float]], last_fraction: float = 0.05) -> dict[str, float]:
     """Final performance over the last ``last_fraction`` of the frames (at least the last iteration).
 
@@ -22,9 +32,9 @@ def summarize_training(rows: list[dict[str, float]], last_fraction: float = 0.05
     """
     if not rows:
         raise ValueError("no iterations in metrics")
-    final_frames = rows[-1]["frames"]
-    tail = [r for r in rows if r["frames"] > (1.0 - last_fraction) * final_frames] or rows[-1:]
-    summary = {"frames": int(final_frames), "wall_s": rows[-1]["wall_s"], "iterations": len(rows),
+    window = final_window(rows, last_fraction)
+    tail, tail_frames = [r for r, _ in window], [f for _, f in window]
+    summary = {"frames": int(rows[-1]["frames"]), "wall_s": rows[-1]["wall_s"], "iterations": len(rows),
                "last_fraction": last_fraction}
     episodes = sum(r["episodes"] for r in tail if r["episodes"] > 0)
     for key, column in (("return", "episode/return"), ("train_return", "episode/train_return"),
@@ -33,8 +43,6 @@ def summarize_training(rows: list[dict[str, float]], last_fraction: float = 0.05
                         ("vx", "episode/vx")):
         weighted = sum(r[column] * r["episodes"] for r in tail if r["episodes"] > 0)
         summary[key] = weighted / episodes if episodes else math.nan
-    batch_frames = [r["frames"] - p["frames"] for p, r in zip([{"frames": 0.0}, *rows[:-1]], rows, strict=True)]
-    tail_frames = batch_frames[-len(tail):]
     summary["cost_rate"] = sum(r["cost_rate"] * f for r, f in zip(tail, tail_frames, strict=True)) / sum(tail_frames)
     summary["episodes"] = int(episodes)
     return summary
