@@ -3,7 +3,7 @@
     python benchmarks/evaluation_workers.py [--episodes 200] [--workers 2] [hydra overrides]
 
 Composes ``conf/`` (default: SRMPC in light traffic on the twin, ``+experiment=light_traffic
-evaluation.controller=srmpc``, the controller that takes most of the pipeline's evaluation time), runs
+controller=srmpc``, the controller that takes most of the pipeline's evaluation time), runs
 one untimed episode in this process (numba's cache, imports), then the same ``--episodes`` episodes
 with ``evaluation.workers=1`` and with ``--workers`` worker processes, each into a temporary directory
 through ``run_evaluation`` (no MLflow), and checks that the two ``episodes.csv`` are identical. Writes
@@ -29,7 +29,7 @@ from srmpc.tracking import Run
 
 ROOT = Path(__file__).resolve().parents[1]
 
-DEFAULT_OVERRIDES = ["+experiment=light_traffic", "evaluation.controller=srmpc"]
+DEFAULT_OVERRIDES = ["+experiment=light_traffic", "controller=srmpc"]
 
 
 def _timed_evaluation(overrides: list[str], episodes: int, workers: int, directory: Path) -> float:

@@ -77,8 +77,8 @@ def record_states(states_per_run: int, stride: int, warmup: int, max_steps: int)
         "shifted_inputs", "has_previous", "rollout_states", "rollout_inputs", "dense", "driver_srmpc")}
     for dense, traffic in enumerate(("light", "dense")):
         base = [f"+experiment={traffic}_traffic", "tracking.enabled=false"]
-        srmpc_config = to_objects(compose_config(base + ["evaluation.controller=srmpc"]))
-        ltv_config = to_objects(compose_config(base + ["evaluation.controller=ltv_mpc"]))
+        srmpc_config = to_objects(compose_config(base + ["controller=srmpc"]))
+        ltv_config = to_objects(compose_config(base + ["controller=ltv_mpc"]))
         env = TwinScenarioEnv(srmpc_config.scenario)
         srmpc = build_controller(srmpc_config, env)
         ltv = build_controller(ltv_config, env)
@@ -446,7 +446,7 @@ def main() -> None:
         states = record_states(args.states_per_run, args.stride, args.warmup, args.max_steps)
     if args.save_states:
         np.savez_compressed(args.save_states, **states)
-    config = to_objects(compose_config(["+experiment=dense_traffic", "evaluation.controller=ltv_mpc",
+    config = to_objects(compose_config(["+experiment=dense_traffic", "controller=ltv_mpc",
                                         "tracking.enabled=false"]))
     from srmpc.controller_factory import planner_ocp
 

@@ -77,7 +77,7 @@ from srmpc.output_folder import atomic_write_text
 from srmpc.sim.single_env import TwinScenarioEnv
 
 OUTPUT = Path("results/benchmarks/qp_solvers.json")
-STREAMS = {"ltv_mpc": ["evaluation.controller=ltv_mpc"], "srmpc": ["evaluation.controller=srmpc"]}
+STREAMS = {"ltv_mpc": ["controller=ltv_mpc"], "srmpc": ["controller=srmpc"]}
 """QP stream -> the controller whose planner QPs it collects (overrides of the committed config)."""
 OURS = ("riccati_ipm", "riccati_ipm_cold")
 SWEEP = {"mode": ("speed", "speed_abs", "balance"), "mu0": (1.0, 10.0, 100.0), "tol_stat": (1e-8, 1e-6, 1e-4)}

@@ -65,7 +65,7 @@ def worst_case_closing_m(ego_speed: np.ndarray, other_speed_bound: np.ndarray) -
 
 def measure(traffic: str, episodes: int) -> dict:
     config = to_objects(compose_config([f"+experiment={traffic}_traffic", "tracking.enabled=false",
-                                        "evaluation.controller=srmpc"]))
+                                        "controller=srmpc"]))
     env = TwinScenarioEnv(config.scenario)
     controller = build_controller(config, env)
     perception_m = config.scenario.perception_range_m

@@ -2,10 +2,10 @@
 
     python -m pipelines.crosscheck
 
-For each method (PPO-L-SI, LTV-MPC, SRMPC) and traffic level, compares (each folder found by its
-``config.yaml``: method, traffic, the default planner settings)
-- under ``results/evaluation/twin/``: 1000 episodes from the twin's own resets (the table's runs), and
-- under ``results/evaluation/highway_env_resets/``: 1000 episodes that start from
+For each method (PPO-L-SI, LTV-MPC, SRMPC) and traffic level, compares (each folder found by the experiment and
+traffic its ``config.yaml`` names)
+- experiment ``table/<method>``: 1000 episodes from the twin's own resets (the table's runs), and
+- experiment ``crosscheck/resets_<method>``: 1000 episodes that start from
   highway-env's own reset for the same seed, copied into the twin (``evaluation.simulator=
   twin_highway_env_resets``), so the start states are highway-env's and every step equals highway-env's.
 
@@ -25,14 +25,14 @@ from pathlib import Path
 import pandas as pd
 from scipy.stats import fisher_exact, norm
 
-from pipelines.reporting import by_method, write_outputs
+from pipelines.reporting import run_of, write_outputs
 from srmpc.confidence_intervals import wilson_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 
 METHODS = ("ppo_lsi", "ltv_mpc", "srmpc")
-SOURCES = {"twin": ROOT / "results/evaluation/twin",
-           "highway_env_resets": ROOT / "results/evaluation/highway_env_resets"}
+SOURCES = {"twin": "table/{method}", "highway_env_resets": "crosscheck/resets_{method}"}
+"""The experiment of each method's evaluation from each source of resets."""
 OUTPUT = ROOT / "results/evaluation/crosscheck.json"
 
 
@@ -55,13 +55,10 @@ def source_metrics(directory: Path) -> dict:
 
 def main() -> None:
     result: dict = {}
-    found = {source: by_method(root) for source, root in SOURCES.items()}
     for traffic in ("light", "dense"):
         for method in METHODS:
-            missing = [str(SOURCES[source]) for source in SOURCES if (method, traffic) not in found[source]]
-            if missing:
-                raise SystemExit(f"{missing[0]}: no evaluation of {method} in {traffic} traffic (run its DVC stage)")
-            directories = {source: found[source][(method, traffic)] for source in SOURCES}
+            directories = {source: run_of(experiment.format(method=method), traffic)
+                           for source, experiment in SOURCES.items()}
             metrics = {source: source_metrics(d) for source, d in directories.items()}
             a, b = metrics["twin"], metrics["highway_env_resets"]
             table = [[a["events"], a["episodes"] - a["events"]], [b["events"], b["episodes"] - b["events"]]]

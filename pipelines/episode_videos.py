@@ -42,7 +42,8 @@ METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC"}
 LEGEND = (("PPO-L-SI rollout (SRMPC's linearization reference)", REFERENCE_COLOR),
           ("MPC plan (QP solution)", PLAN_COLOR))
 def config_for(traffic: str, method: str, simulator: str):
-    return to_objects(compose_config([f"+experiment={traffic}_traffic", f"evaluation.controller={method}",
+    controller = "controller=policy" if method == "ppo_lsi" else f"controller={method}"
+    return to_objects(compose_config([f"+experiment={traffic}_traffic", controller,
                                       f"evaluation.simulator={simulator}", "tracking.enabled=false"]))
 
 

@@ -14,11 +14,10 @@ of the pipeline's parent run:
   summary as ``final/*`` metrics, and its files (``policy.pt`` included) as artifacts.
 
 What a run is comes from its directory's ``config.yaml`` alone, never from the directory's or the DVC
-stage's name: its name (:func:`run_name_of`, e.g. ``srmpc_recommended-light-twin-seed100000``) and the tags
-of a live run (``stage``, ``method``, ``traffic``, ``seed``; srmpc/tracking.run_tags, which names a method
-as the results table does), ``variant`` (SRMPC's variant and the planner setting; a training's changed
-agent settings), ``planner`` (named by what it changes: ``margin_1m``, ``margin_4m``,
-``margin_1m_speed_weight_2``; srmpc/tracking.planner_setting), ``margin_m`` and ``simulator``. Bookkeeping
+stage's name: an evaluation's name is its experiment and traffic, as a live run's (:func:`run_name_of`, e.g.
+``confirmation/srmpc_recommended_light``); the tags are a live run's (``stage``, ``experiment``, ``method``,
+``traffic``, ``seed``; srmpc/tracking.run_tags), ``margin_m`` and ``simulator``, and a training's ``variant``
+(its changed agent settings). Bookkeeping
 tags: ``output_dir``, ``dvc_stage`` and ``dvc_lock_md5``: the MD5 of the stage's entry in ``dvc.lock``
 (command, dependency and output hashes), which changes whenever DVC reruns the stage.
 
@@ -51,14 +50,8 @@ from typing import Any
 
 import yaml
 
-from srmpc.tracking import (
-    MLFLOW_BATCH_LIMIT,
-    NAMED_METHODS,
-    RESULTS_TABLE_TAG,
-    flatten,
-    planner_setting,
-    run_tags,
-)
+from pipelines.reporting import EXPERIMENTS
+from srmpc.tracking import MLFLOW_BATCH_LIMIT, RESULTS_TABLE_TAG, flatten, run_tags
 
 ROOT = Path(__file__).resolve().parents[1]
 IMPORT_TAG, CURRENT_TAG, SUPERSEDED_TAG = "dvc_lock_md5", "current", "superseded_by"
@@ -133,23 +126,14 @@ def training_setting(config: dict) -> str:
 
 
 def result_tags(config: dict, kind: str) -> dict[str, str]:
-    """``variant``, ``planner``, ``margin_m`` and ``simulator`` tags of a result, read from its composed
-    config alone. variant: an evaluation's SRMPC variant and planner setting (``track_rollout+margin_1m``),
-    a training's changed agent settings (:func:`training_setting`)."""
+    """``margin_m`` and ``simulator`` tags of an evaluation, and a training's ``variant`` (its changed agent
+    settings, :func:`training_setting`), read from its composed config alone."""
     if kind == "training":
         return {"variant": training_setting(config)}
-    planner_section = config.get("planner") or {}
-    planner = planner_setting(planner_section)
-    tags = {"planner": planner}
-    margin = planner_section.get("safety_margin_longitudinal_m")
+    tags = {}
+    margin = (config.get("planner") or {}).get("safety_margin_longitudinal_m")
     if margin is not None:
         tags["margin_m"] = str(margin)
-    variants = []
-    if (config.get("evaluation") or {}).get("controller") == "srmpc":
-        variants.append(str((config.get("srmpc") or {}).get("variant", "paper")))
-    if planner != "default":
-        variants.append(planner)
-    tags["variant"] = "+".join(variants) or "default"
     simulator = (config.get("evaluation") or {}).get("simulator")
     if simulator:
         tags["simulator"] = str(simulator)
@@ -157,22 +141,15 @@ def result_tags(config: dict, kind: str) -> dict[str, str]:
 
 
 def run_name_of(kind: str, config: dict) -> str:
-    """A result's run name, from its config: ``<method>[-<planner setting>]-<traffic>-<simulator>-seed<n>``
-    (the planner setting unless the method's name implies it, srmpc/tracking.py ``NAMED_METHODS``), so the
-    runs table sorted by name lists a method's traffic levels side by side; ``train-<agent>-seed_<n>``
-    with ``-<changed settings>`` for a training that changes its agent's defaults."""
+    """A result's run name, from its config: an evaluation's ``<experiment>_<traffic>`` (a live run's name, its
+    folder's); ``train-<agent>-seed_<n>`` with ``-<changed settings>`` for a training that changes its agent's
+    defaults."""
     tags = run_tags(config)
     if kind == "training":
         setting = training_setting(config)
         return f"train-{tags.get('method', '?')}-seed_{tags.get('seed', '?')}" + (
             f"-{setting}" if setting != "default" else "")
-    evaluation = config.get("evaluation") or {}
-    planner = planner_setting(config.get("planner"))
-    method = tags.get("method", "?")
-    if planner != "default" and method not in NAMED_METHODS.values():
-        method = f"{method}-{planner}"
-    return (f"{method}-{tags.get('traffic', '?')}-{evaluation.get('simulator', '?')}"
-            f"-seed{tags.get('seed', '?')}")
+    return f"{tags.get('experiment', '?')}_{tags.get('traffic', '?')}"
 
 
 def _training_metrics(path: Path, Metric: Any) -> list[Any]:
@@ -263,17 +240,19 @@ TABLE_NUMBERS = ("episodes", "mean_event_cost", "cost_rate", "mean_return", "mea
 
 
 def table_row_of(run: Any, table: dict) -> tuple[str, str] | None:
-    """(traffic, method) of the row of ``table`` (results/table.json, parsed) that ``run`` is: the row of
-    its ``traffic`` and ``method`` tags whose numbers (:data:`TABLE_NUMBERS`) all equal the run's metrics."""
+    """(traffic, method) of the row of ``table`` (results/table.json, parsed) that ``run`` is: the row of its
+    ``traffic`` and ``experiment`` tags (reporting.EXPERIMENTS) whose numbers (:data:`TABLE_NUMBERS`) all equal the
+    run's metrics."""
     tags, metrics = run.data.tags, run.data.metrics
-    row = (table.get(tags.get("traffic")) or {}).get(tags.get("method"))
+    method = next((m for m, experiment in EXPERIMENTS.items() if experiment == tags.get("experiment")), None)
+    row = (table.get(tags.get("traffic")) or {}).get(method)
     if not isinstance(row, dict):
         return None
     for key in TABLE_NUMBERS:
         if key not in row or key not in metrics or not math.isclose(float(row[key]), metrics[key],
                                                                     rel_tol=1e-12, abs_tol=1e-15):
             return None
-    return tags["traffic"], tags["method"]
+    return tags["traffic"], method
 
 
 def mark_table_rows(client: Any, experiment_id: str, table_path: Path) -> tuple[int, int]:

@@ -6,11 +6,12 @@ SRMPC at the same planner config; and the initial-guess study it rests on.
 Reads, at each planner config (the table's, ``planner=ltv_mpc``, and the paper's operating point,
 ``planner=paper_operating_point``) and traffic level, on the table's episodes (episode i from seed i, 1000 each):
 
-- ``results/evaluation/nmpc/``: the NMPC (``srmpc/mpc/nmpc/sqp.py``) started from constant velocity in the lane, from
-  its shifted previous solution, from the policy's rollout (the paper's proposal) and from the better of the last
-  two (AC4MPC's rule) (DVC stage ``evaluate_nmpc``);
-- LTV-MPC and SRMPC at the same config: ``results/evaluation/twin/`` (the table's runs) and
-  ``results/evaluation/tradeoff/`` (the operating point's), each folder found by its ``config.yaml``;
+- experiments ``nmpc/<guess>[_paper_operating_point]``: the NMPC (``srmpc/mpc/nmpc/sqp.py``) started from constant
+  velocity in the lane, from its shifted previous solution, from the policy's rollout (the paper's proposal) and
+  from the better of the last two (AC4MPC's rule);
+- LTV-MPC and SRMPC at the same config: experiments ``table/<method>`` (the table's runs) and
+  ``operating_point/<method>`` (the operating point's), each folder found by the experiment its ``config.yaml``
+  names (:data:`EXPERIMENTS`);
 - ``results/benchmarks/nmpc_initial_guess.json``: SQP iterations, time and optimum per guess on 300 recorded states
   (the lowest optimum over every solver's optimum for a state, out of all states), the agreement with CasADi +
   IPOPT, IPOPT's KKT certification of every converged plan and the NMPC's own KKT residual.
@@ -32,13 +33,9 @@ import argparse
 import json
 from pathlib import Path
 
-from omegaconf import OmegaConf
-
-from pipelines.reporting import ci, difference, evaluations, method_row, settings_of, sign, write_outputs
+from pipelines.reporting import ci, difference, method_row, run_of, sign, write_outputs
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
-from srmpc.config.compose import compose_config
 
-ROOTS = (Path("results/evaluation/nmpc"), Path("results/evaluation/twin"), Path("results/evaluation/tradeoff"))
 STUDY = Path("results/benchmarks/nmpc_initial_guess.json")
 PLANNERS = {"ltv_mpc": "the table's planner config (`planner=ltv_mpc`)",
             "paper_operating_point": "the paper's operating point (`planner=paper_operating_point`)"}
@@ -46,7 +43,13 @@ TRAFFIC = ("light", "dense")
 METHODS = {"ltv_mpc": "LTV-MPC", "srmpc": "SRMPC (Algorithm 1)",
            "nmpc_constant_velocity": "NMPC from constant velocity", "nmpc": "NMPC from the shifted previous solution",
            "nmpc_rollout": "NMPC from the policy's rollout", "nmpc_best_of_two": "NMPC, best of two (AC4MPC)"}
-"""Method (``reporting.method_of``) -> label; the first two are the comparators every NMPC row is paired with."""
+"""Method -> label; the first two are the comparators every NMPC row is paired with."""
+EXPERIMENTS = {"ltv_mpc": {"ltv_mpc": "table/ltv_mpc", "paper_operating_point": "operating_point/ltv_mpc"},
+               "srmpc": {"ltv_mpc": "table/srmpc", "paper_operating_point": "operating_point/srmpc"},
+               **{method: {"ltv_mpc": f"nmpc/{guess}", "paper_operating_point": f"nmpc/{guess}_paper_operating_point"}
+                  for method, guess in (("nmpc_constant_velocity", "constant_velocity"), ("nmpc", "shifted"),
+                                        ("nmpc_rollout", "rollout"), ("nmpc_best_of_two", "best_of_two"))}}
+"""Method -> planner option -> its experiment (conf/experiment/<experiment>.yaml)."""
 COMPARATORS = ("ltv_mpc", "srmpc")
 EXTRA_PAIRS = {"nmpc_best_of_two": ("nmpc_rollout",)}
 """Further paired differences in a row's ``paired``: best of two against its own solve from the rollout (what the
@@ -66,23 +69,9 @@ STUDY_GUESSES = {"constant_velocity": "constant velocity", "shifted_previous": "
 
 
 def folders(planner: str, traffic: str) -> dict[str, Path]:
-    """Method -> its evaluation folder at ``planner``'s settings in ``traffic`` on the table's seeds, read from
-    each folder's config.yaml (never its name); two folders for one method are an error."""
-    settings = OmegaConf.to_container(compose_config([f"planner={planner}"]).planner, resolve=True)
-    wanted = settings_of({"planner": settings})
-    found: dict[str, Path] = {}
-    for directory, experiment in evaluations(*ROOTS):
-        if (experiment["traffic"], experiment["seed"], experiment["simulator"]) == (traffic, 0, "twin") and \
-                experiment["settings"] == wanted and experiment["method"] in METHODS:
-            if experiment["method"] in found:
-                raise SystemExit(f"nmpc: {directory} and {found[experiment['method']]} both hold "
-                                 f"{experiment['method']} in {traffic} traffic at planner={planner}")
-            found[experiment["method"]] = directory
-    missing = [method for method in METHODS if method not in found]
-    if missing:
-        raise SystemExit(f"nmpc: no finished {', '.join(missing)} evaluation in {traffic} traffic at "
-                         f"planner={planner} (run dvc repro evaluate_nmpc first)")
-    return found
+    """Method -> its evaluation folder at planner option ``planner`` in ``traffic`` (:data:`EXPERIMENTS`), found by
+    the experiment its config.yaml names."""
+    return {method: run_of(EXPERIMENTS[method][planner], traffic) for method in METHODS}
 
 
 def converged_share(outcomes: dict) -> float:

@@ -13,12 +13,11 @@ LTV-MPC row (J_c 0.625 +- 0.05, v_x 24.38 +- 0.3 m/s):
 
 At each, on the table's episodes (episode i from seed i, 1000 per cell), this stage reads
 
-- LTV-MPC, SRMPC (Algorithm 1) and SRMPC tracking the rollout: at the frozen option
-  ``results/evaluation/tradeoff/<method>_paper_operating_point_<traffic>/`` (DVC stage
-  ``evaluate_tradeoff@<method>-paper_operating_point-<traffic>``), at the declared rule's probe
-  ``results/evaluation/operating_point/<method>_declared_rule_probe_<traffic>/`` (DVC stage
-  ``evaluate_declared_rule_probe@<method>-<traffic>``), each folder found by its config.yaml, never its name;
-- ``results/evaluation/twin/ppo_lsi_<traffic>/``: PPO-L-SI, the table's own evaluation (it has no planner),
+- LTV-MPC, SRMPC (Algorithm 1) and SRMPC tracking the rollout: at the frozen option experiment
+  ``operating_point/<method>``, at the declared rule's probe ``operating_point/<method>_declared_rule_probe``
+  (``results/evaluation/<experiment>_<traffic>/``, DVC stage ``evaluate@<experiment>-<traffic>``), each folder
+  found by the experiment its config.yaml names, never its name;
+- experiment ``table/ppo_lsi``: PPO-L-SI, the table's own evaluation (it has no planner),
 
 and writes
 
@@ -55,26 +54,19 @@ from pathlib import Path
 
 import pandas as pd
 import yaml
-from omegaconf import OmegaConf
 
 from pipelines.reporting import (
     PAPER,
-    by_method,
     ci,
     cut_with_ci,
     difference,
-    evaluations,
     method_row,
-    settings_of,
+    run_of,
     sign,
     write_outputs,
 )
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences, paired_ratios
-from srmpc.config.compose import compose_config
 
-TWIN = Path("results/evaluation/twin")
-TRADEOFF = Path("results/evaluation/tradeoff")
-DECLARED = Path("results/evaluation/operating_point")
 CALIBRATION = Path("results/operating_point/calibration.csv")
 PROBES = Path("pipelines/operating_point_probes.yaml")
 PLANNER = "paper_operating_point"
@@ -86,8 +78,9 @@ PLANNERS = {PLANNER: ("frozen", "frozen_probe", "the frozen option (the rule use
 TRAFFIC = ("light", "dense")
 METHODS = {"ppo_lsi": "PPO-L-SI (the table's own run)", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC (Algorithm 1)",
            "srmpc_track_rollout": "SRMPC, tracking the rollout (ours)"}
-"""Method -> label. Each planner method's folder is found by its config.yaml: the table's seeds on the twin at the
-option's planner settings; PPO-L-SI's is the table's own run."""
+"""Method -> label. A planner method's run at option ``paper_operating_point`` is experiment
+``operating_point/<method>``, at ``declared_rule_probe`` ``operating_point/<method>_declared_rule_probe``;
+PPO-L-SI's is the table's own run (``table/ppo_lsi``)."""
 SHORT = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "srmpc_track_rollout": "SRMPC (track)"}
 PUBLISHED = {"return_per_step": 1, "mean_event_cost": 2, "cost_rate": 3, "mean_n_steps": 4, "mean_vx": 5}
 """Table metric -> its index in ``reporting.PAPER``'s rows."""
@@ -104,15 +97,10 @@ CUTS = (("ppo_lsi", 0.30), ("ltv_mpc", 0.65))
 
 
 def folders(planner: str, traffic: str) -> dict[str, Path]:
-    """Method -> its evaluation folder in ``traffic`` at ``planner``, read from each folder's config.yaml."""
-    settings = OmegaConf.to_container(compose_config([f"planner={planner}"]).planner, resolve=True)
-    wanted = settings_of({"planner": settings})
-    found = {"ppo_lsi": by_method(TWIN)[("ppo_lsi", traffic)]}
-    for directory, experiment in evaluations(TWIN, TRADEOFF, DECLARED):
-        if (experiment["traffic"], experiment["seed"], experiment["simulator"]) == (traffic, 0, "twin") and \
-                experiment["settings"] == wanted and experiment["method"] in METHODS:
-            found[experiment["method"]] = directory
-    return found
+    """Method -> its evaluation folder in ``traffic`` at ``planner`` (:data:`METHODS`), found by its experiment."""
+    suffix = "" if planner == PLANNER else f"_{planner}"
+    return {method: run_of("table/ppo_lsi" if method == "ppo_lsi" else f"operating_point/{method}{suffix}", traffic)
+            for method in METHODS}
 
 
 def verdict(value: float, interval: tuple[float, float]) -> str:
@@ -239,9 +227,6 @@ def planner_result(planner: str, resamples: int, seed: int) -> dict:
         rows, frames = {}, {}
         found = folders(planner, traffic)
         for method in METHODS:
-            if method not in found:
-                raise SystemExit(f"operating_point: no finished {method} evaluation in {traffic} traffic at "
-                                 f"planner={planner} under {TRADEOFF} or {DECLARED} (run its DVC stage first)")
             rows[method], frames[method] = method_row(found[method], resamples, seed)
             rows[method]["directory"] = str(found[method])
             if (traffic, method) in PAPER:

@@ -90,7 +90,7 @@ def read_probes(path: Path) -> dict:
 
 def probe_overrides(spec: dict, probe: dict) -> list[str]:
     """The Hydra overrides of a probe: LTV-MPC, the file's traffic and seed, the probe's knobs."""
-    return [f"scenario={spec.get('traffic', 'light')}", "evaluation.controller=ltv_mpc",
+    return [f"scenario={spec.get('traffic', 'light')}", "controller=ltv_mpc",
             f"evaluation.seed={int(spec['seed'])}", f"evaluation.episodes={int(probe['episodes'])}",
             *probe.get("overrides", [])]
 

@@ -1,7 +1,7 @@
 """DVC stage: the paper's evaluation table from the episodes, with 95% confidence intervals.
 
-Reads the table's evaluations under results/evaluation/twin/ (each row's method and traffic from its
-folder's config.yaml) and writes
+Reads the table's evaluations, the experiments ``table/<method>`` (and ``confirmation/srmpc_recommended``), each
+found by the experiment and traffic its config.yaml names (``reporting.runs``), and writes
 - results/table.json: ``[traffic][method]`` with mean_return, return_per_step (the paper's J_r per step: mean J_r /
   mean n_steps), mean_return_per_step (the mean of per-episode ratios, not the paper's), mean_event_cost,
   cost_rate, mean_n_steps, mean_vx, episodes, a ``<metric>_ci95`` [low, high] beside each metric
@@ -19,19 +19,17 @@ import json
 from pathlib import Path
 
 from pipelines.reporting import (
-    CONFIRMATION,
-    EVALUATION,
+    EXPERIMENTS,
     HEADER,
     METHODS,
     PAIRED_AGAINST,
     PAPER,
-    by_method,
     ci,
     cut_with_ci,
-    evaluations,
     method_row,
     paper_row,
     row_with_intervals,
+    runs,
     write_outputs,
 )
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences, paired_ratios
@@ -193,12 +191,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
     args = parser.parse_args()
     table, lines = {}, []
-    found = by_method(EVALUATION)  # (method, traffic) -> folder, from each folder's config.yaml
-    confirmation = evaluations(CONFIRMATION)
+    found = runs()  # (experiment, traffic) -> folder, from each folder's config.yaml
     for traffic in ("light", "dense"):
         rows, frames = {}, {}
         for method in METHODS:
-            if (directory := found.get((method, traffic))) is not None:
+            if method != "srmpc_recommended" and (directory := found.get((EXPERIMENTS[method], traffic))):
                 rows[method], frames[method] = method_row(directory, args.resamples, args.seed)
         if "srmpc" in rows:
             rows["srmpc"]["paired_differences"] = {
@@ -212,8 +209,7 @@ def main() -> None:
         if "ppo_sb3" in rows and "ppo" in rows:  # the two PPOs on the same episodes
             rows["ppo_sb3"]["paired_differences"] = {
                 "ppo": paired_differences(frames["ppo_sb3"], frames["ppo"], args.resamples, args.seed)}
-        recommended = next((d for d, x in confirmation if x["traffic"] == traffic and x["method"].startswith("srmpc")),
-                           None)  # the confirmation's SRMPC
+        recommended = found.get((EXPERIMENTS["srmpc_recommended"], traffic))  # the confirmation's SRMPC
         if recommended is not None:  # ours, beyond the paper: on fresh seeds (not paired)
             rows["srmpc_recommended"], _ = method_row(recommended, args.resamples, args.seed)
         table[traffic] = rows

@@ -2,9 +2,9 @@
 bootstrap settings, and how a report is written.
 
 - :data:`METHODS`, :data:`PAIRED_AGAINST`: the table's rows (their names) and what SRMPC is paired against;
-- :data:`EVALUATION`, :data:`CONFIRMATION`: where their episodes live;
-- :func:`evaluations`, :func:`experiment_of`: which experiment each evaluation folder holds, read from its
-  ``config.yaml`` (controller, SRMPC variant, planner settings, traffic, seed), never from its name;
+- :data:`EXPERIMENTS`: the experiment each row is;
+- :func:`runs`, :func:`run_of`: every evaluation by (experiment, traffic), read from its ``config.yaml``, never
+  from its folder's name or a guess from config values; :func:`planner_knobs`: a run's planner settings, as data;
 - :data:`PAPER`: the paper's Table "Evaluation results";
 - :func:`method_row`, :func:`row_with_intervals`, :func:`paper_row`, :func:`ci`: a method's row, read and printed;
 - :func:`difference`, :func:`sign`: a paired difference printed, and which side of 0 its CI lies on;
@@ -20,6 +20,7 @@ cross-check (``crosscheck``) and ``table_vs_revision`` all read these from here.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from pathlib import Path
@@ -28,16 +29,23 @@ import pandas as pd
 import yaml
 
 from srmpc.confidence_intervals import table_metrics_with_intervals
-from srmpc.config.schema import PlannerConfig
+from srmpc.controllers.srmpc import (
+    OtherVehiclePrediction,
+    ReferenceSelection,
+    SrmpcSettings,
+    TrackingTarget,
+    variant_of,
+)
 from srmpc.output_folder import atomic_write_text
-from srmpc.tracking import evaluated_method
 
-EVALUATION = Path("results/evaluation/twin")
+EVALUATION = Path("results/evaluation")
 METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "ppo": "PPO",
            "ppo_sb3": "PPO (Stable-Baselines3)",
            "lane_keeping": "Lane keeping (baseline)",
            "srmpc_recommended": "SRMPC, recommended (ours: srmpc=track_rollout planner=margin_1m)"}
-CONFIRMATION = Path("results/evaluation/confirmation")
+EXPERIMENTS = {**{method: f"table/{method}" for method in METHODS},
+               "srmpc_recommended": "confirmation/srmpc_recommended"}
+"""The experiment each row of the table is (conf/experiment/<experiment>.yaml)."""
 PAIRED_AGAINST = ("ltv_mpc", "ppo_lsi")
 PAPER = {  # Table "Evaluation results" of the paper: J_r, J_r per step (= J_r / n_steps of the row), J_c, rho_c,
     # n_steps, v_x
@@ -73,55 +81,47 @@ def read_config(directory: Path) -> dict:
     return yaml.safe_load((directory / "config.yaml").read_text())
 
 
-def method_of(config: dict) -> str:
-    """The method a config evaluates (srmpc.tracking.evaluated_method): ``ltv_mpc``, ``srmpc`` or
-    ``srmpc_<variant>``; a policy's: its agent, named by its ``policy_path`` (``ppo_sb3``) when one is set."""
-    return evaluated_method(config["evaluation"], config.get("srmpc") or {})
+@functools.cache
+def runs(root: Path = EVALUATION) -> dict[tuple[str, str], Path]:
+    """Every finished evaluation (a folder with a ``summary.json``) under ``root``, keyed by (experiment, traffic)
+    as its ``config.yaml`` names them; two folders of one key are an error."""
+    found: dict[tuple[str, str], Path] = {}
+    for summary in sorted(root.glob("**/summary.json")):
+        config = read_config(summary.parent)
+        if not config.get("experiment"):
+            continue
+        key = (config["experiment"], config["scenario"]["traffic"])
+        if key in found:
+            raise SystemExit(f"{summary.parent} and {found[key]}: both hold experiment {key[0]} in {key[1]} traffic")
+        found[key] = summary.parent
+    return found
 
 
-def settings_of(config: dict) -> dict:
-    """The planner settings a point is told by: margin [m], the speed (and x) weight of state_weights and the
-    common scale on the slack prices (1 where a config predates ``planner.slack_price_scale``)."""
+def run_of(experiment: str, traffic: str) -> Path:
+    """The folder of ``experiment``'s evaluation in ``traffic`` (:func:`runs`)."""
+    directory = runs().get((experiment, traffic))
+    if directory is None:
+        raise SystemExit(f"no evaluation of experiment {experiment} in {traffic} traffic under {EVALUATION} "
+                         f"(run it: dvc repro evaluate@{experiment}-{traffic})")
+    return directory
+
+
+def variant_name(config: dict) -> str:
+    """The SRMPC variant a config runs, as ``srmpc.controllers.srmpc.variant_of`` names it (a display name)."""
+    settings = config["controller"]["srmpc"]
+    return variant_of(SrmpcSettings(ReferenceSelection(settings["selection"]),
+                                    OtherVehiclePrediction(settings["prediction"]), int(settings["relinearizations"]),
+                                    TrackingTarget(settings["tracking"])))
+
+
+def planner_knobs(config: dict) -> dict:
+    """The planner settings a trade-off point is drawn at (data, not identity): margin [m], the speed (and x)
+    weight of state_weights and the common scale on the slack prices."""
     planner = config["planner"]
     return {"safety_margin_longitudinal_m": float(planner["safety_margin_longitudinal_m"]),
             "speed_weight": float(planner["state_weights"][3]),
             "x_weight": float(planner["state_weights"][0]),
-            "slack_price_scale": float(planner.get("slack_price_scale", 1.0))}
-
-
-DEFAULT_SETTINGS = settings_of({"planner": vars(PlannerConfig())})
-"""The planner settings of conf/planner/ltv_mpc.yaml (the paper's LTV-MPC: 8 m, speed weight 0.5)."""
-
-
-def experiment_of(config: dict) -> dict:
-    """What an evaluation folder holds: ``method``, ``traffic``, ``seed`` (episode i from seed + i), ``simulator``
-    and the planner ``settings``, with ``default_planner`` when those are conf/planner/ltv_mpc.yaml's."""
-    settings = settings_of(config)
-    return {"method": method_of(config), "traffic": config["scenario"]["traffic"],
-            "seed": int(config["evaluation"].get("seed", 0)),
-            "simulator": config["evaluation"].get("simulator", "twin"), "settings": settings,
-            "default_planner": settings == DEFAULT_SETTINGS}
-
-
-def evaluations(*roots: Path) -> list[tuple[Path, dict]]:
-    """Every finished evaluation folder (one with a ``summary.json``) under ``roots``, sorted, with
-    :func:`experiment_of` its ``config.yaml``."""
-    directories = sorted(p.parent for root in roots for p in root.glob("*/summary.json"))
-    return [(directory, experiment_of(read_config(directory))) for directory in directories]
-
-
-def by_method(*roots: Path) -> dict[tuple[str, str], Path]:
-    """The evaluations at the default planner settings under ``roots``, keyed by (method, traffic); two folders
-    of one key are an error (which is the table's row would be a guess)."""
-    found: dict[tuple[str, str], Path] = {}
-    for directory, experiment in evaluations(*roots):
-        if experiment["default_planner"]:
-            key = (experiment["method"], experiment["traffic"])
-            if key in found:
-                raise SystemExit(f"{directory} and {found[key]}: both hold {key[0]} in {key[1]} traffic "
-                                 "at the default planner settings")
-            found[key] = directory
-    return found
+            "slack_price_scale": float(planner["slack_price_scale"])}
 
 
 def sign(interval: tuple[float, float]) -> int:

@@ -7,13 +7,13 @@ Reads
 - ``results/training/summary.json`` (DVC stage ``training_figure``): end-of-training J_r, J_c, rho_c and v_x of PPO,
   PPO-L-SI and PPO-L-RSS (3 seeds, Student-t CIs) and of PPO-L-RSS with ad-rss-lib's parameters (seed 0), and the
   paper's training claim checked for PPO-L-RSS (``paper_claim_ppo_lsi_rss``);
-- ``results/evaluation/rss/<method>_<agent>_<traffic>/`` (DVC stage ``evaluate_rss``): each PPO-L-RSS policy alone
-  (``ppo_lsi``), as SRMPC's proposer at the table's planner config (``srmpc``) and at the recommended setting
-  (``srmpc_recommended``: tracking the rollout, 1 m safety region), 1000 episodes on the table's seeds;
-- the same methods with PPO-L-SI on the same seeds: ``results/evaluation/twin/{ppo_lsi,srmpc}_<traffic>/`` and
-  ``results/evaluation/tradeoff/srmpc_track_rollout_margin_1m_<traffic>/``;
-- the confirmation: PPO-L-RSS's policy (``results/evaluation/rss/ppo_lsi_ppo_lsi_rss_confirmation_<traffic>/``) and
-  PPO-L-SI's (``results/evaluation/confirmation/ppo_lsi_<traffic>/``) on 1000 fresh episodes (seeds 100000 + i);
+- experiments ``rss/<method>_<agent>``: each PPO-L-RSS policy alone (``ppo_lsi``), as SRMPC's proposer at the
+  table's planner config (``srmpc``) and at the recommended setting (``srmpc_recommended``: tracking the rollout,
+  1 m safety region), 1000 episodes on the table's seeds;
+- the same methods with PPO-L-SI on the same seeds: experiments ``table/ppo_lsi``, ``table/srmpc``
+  and ``tradeoff/srmpc_track_rollout_margin_1m``;
+- the confirmation: PPO-L-RSS's policy (experiment ``confirmation/ppo_lsi_rss``) and
+  PPO-L-SI's (``confirmation/ppo_lsi``) on 1000 fresh episodes (seeds 100000 + i);
 
 and writes ``results/rss.json`` (parameter sets, training rows, evaluation rows with 95% CIs, paired differences
 RSS minus SI per episode seed, verdicts) and ``results/rss.md`` (the same as tables and sentences).
@@ -32,30 +32,27 @@ import argparse
 import json
 from pathlib import Path
 
-from pipelines.reporting import ci, experiment_of, method_row, read_config, write_outputs
+from pipelines.reporting import ci, method_row, read_config, run_of, write_outputs
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.scenario.safety_index import rss_lateral_distance, rss_longitudinal_distance
 
 TRAINING_SUMMARY = Path("results/training/summary.json")
-RSS = Path("results/evaluation/rss")
 TRAFFIC = ("light", "dense")
 AGENTS = {"ppo_lsi_rss": "PPO-L-RSS", "ppo_lsi_rss_ad_rss_lib": "PPO-L-RSS (ad-rss-lib)"}
-"""The RSS agents (conf/policy/<agent>.yaml) and their labels."""
-PARAMETER_SETS = {"ppo_lsi_rss": ("IEEE 9304756, aggressive", ["+experiment=ppo_lsi_rss"]),
-                  "ppo_lsi_rss_ad_rss_lib": ("intel/ad-rss-lib defaults", ["+experiment=rss_sensitivity/ad_rss_lib"])}
+"""The RSS agents (results/training/<agent>/) and their labels."""
+PARAMETER_SETS = {"ppo_lsi_rss": ("IEEE 9304756, aggressive", ["+experiment=training/ppo_lsi_rss"]),
+                  "ppo_lsi_rss_ad_rss_lib": ("intel/ad-rss-lib defaults",
+                                             ["+experiment=training/rss_sensitivity/ad_rss_lib"])}
 """Agent -> (the parameter set's source, the training overrides that compose it)."""
-METHODS = {"ppo_lsi": ("policy", "results/evaluation/twin/ppo_lsi_{traffic}", "ppo_lsi"),
-           "srmpc": ("SRMPC, table planner", "results/evaluation/twin/srmpc_{traffic}", "srmpc"),
-           "srmpc_recommended": ("SRMPC, recommended setting",
-                                 "results/evaluation/tradeoff/srmpc_track_rollout_margin_1m_{traffic}",
-                                 "srmpc_track_rollout")}
-"""Method -> (label, PPO-L-SI's folder on the same seeds, the method name its config.yaml gives)."""
+METHODS = {"ppo_lsi": ("policy", "table/ppo_lsi"), "srmpc": ("SRMPC, table planner", "table/srmpc"),
+           "srmpc_recommended": ("SRMPC, recommended setting", "tradeoff/srmpc_track_rollout_margin_1m")}
+"""Method -> (label, its experiment with PPO-L-SI's policy on the same seeds); with an RSS agent's policy it is
+experiment ``rss/<method>_<agent>``."""
 TRAINING_AGENTS = {"ppo": "PPO", "ppo_lsi": "PPO-L-SI", **AGENTS}
-CONFIRMATION_PPO_LSI = "results/evaluation/confirmation/ppo_lsi_{traffic}"
+CONFIRMATION = {"ppo_lsi": "confirmation/ppo_lsi", "ppo_lsi_rss": "confirmation/ppo_lsi_rss"}
 CONFIRMATION_SEED = 100000
-"""PPO-L-SI on fresh seeds (DVC stage evaluate_confirmation); PPO-L-RSS's policy on the same seeds:
-evaluate_rss_confirmation."""
+"""PPO-L-SI's and PPO-L-RSS's policies on fresh seeds (100000 + i), the same for both."""
 SPEED_TOLERANCE_MPS = 0.5
 """A parameter set is not recommended for a lower J_c if its SRMPC is slower than the other's by more than this."""
 
@@ -86,21 +83,14 @@ def training_rows(summary: dict) -> dict:
             for agent in TRAINING_AGENTS if agent in summary}
 
 
-def folder(path: Path, method: str, traffic: str, seed: int = 0) -> Path:
-    """``path``, checked against its config.yaml: the method, the traffic and the seeds (episode i from seed + i;
+def folder(experiment: str, traffic: str, seed: int = 0) -> Path:
+    """The folder of ``experiment`` in ``traffic``, checked against its config.yaml's seeds (episode i from seed + i;
     0: the table's)."""
-    if not (path / "summary.json").is_file():
-        raise SystemExit(f"rss: {path} holds no finished evaluation (run its DVC stage first)")
-    experiment = experiment_of(read_config(path))
-    if (experiment["method"], experiment["traffic"], experiment["seed"]) != (method, traffic, seed):
-        raise SystemExit(f"rss: {path} holds {experiment['method']} in {experiment['traffic']} traffic from seed "
-                         f"{experiment['seed']}, not {method} in {traffic} traffic from seed {seed}")
+    path = run_of(experiment, traffic)
+    first = int(read_config(path)["evaluation"]["seed"])
+    if first != seed:
+        raise SystemExit(f"rss: {path} ({experiment}) starts from seed {first}, not {seed}")
     return path
-
-
-def rss_method_name(method: str, agent: str) -> str:
-    """The name srmpc.tracking.evaluated_method gives ``method`` run with ``agent``'s policy."""
-    return agent if method == "ppo_lsi" else f"{METHODS[method][2]}_{agent}"
 
 
 def difference_verdicts(d: dict) -> dict:
@@ -115,13 +105,13 @@ def evaluation(resamples: int, seed: int) -> dict:
     result: dict = {}
     for traffic in TRAFFIC:
         rows: dict = {}
-        for method, (_, si_folder, si_method) in METHODS.items():
-            si_row, si_frame = method_row(folder(Path(si_folder.format(traffic=traffic)), si_method, traffic),
-                                          resamples, seed)
-            rows[f"{method}/ppo_lsi"] = {**si_row, "directory": si_folder.format(traffic=traffic)}
+        for method, (_, si_experiment) in METHODS.items():
+            si_folder = folder(si_experiment, traffic)
+            si_row, si_frame = method_row(si_folder, resamples, seed)
+            rows[f"{method}/ppo_lsi"] = {**si_row, "directory": str(si_folder)}
             for agent in AGENTS:
-                directory = RSS / f"{method}_{agent}_{traffic}"
-                row, frame = method_row(folder(directory, rss_method_name(method, agent), traffic), resamples, seed)
+                directory = folder(f"rss/{method}_{agent}", traffic)
+                row, frame = method_row(directory, resamples, seed)
                 difference = paired_differences(frame, si_frame, resamples, seed)
                 rows[f"{method}/{agent}"] = {**row, "directory": str(directory), "minus_ppo_lsi": difference,
                                              "verdicts": difference_verdicts(difference)}
@@ -133,12 +123,12 @@ def confirmation(resamples: int, seed: int) -> dict:
     """PPO-L-RSS's policy against PPO-L-SI's on the confirmation's fresh seeds (100000 + i), paired."""
     result = {}
     for traffic in TRAFFIC:
-        si_dir = CONFIRMATION_PPO_LSI.format(traffic=traffic)
-        si_row, si_frame = method_row(folder(Path(si_dir), "ppo_lsi", traffic, CONFIRMATION_SEED), resamples, seed)
-        directory = RSS / f"ppo_lsi_ppo_lsi_rss_confirmation_{traffic}"
-        row, frame = method_row(folder(directory, "ppo_lsi_rss", traffic, CONFIRMATION_SEED), resamples, seed)
+        si_dir = folder(CONFIRMATION["ppo_lsi"], traffic, CONFIRMATION_SEED)
+        si_row, si_frame = method_row(si_dir, resamples, seed)
+        directory = folder(CONFIRMATION["ppo_lsi_rss"], traffic, CONFIRMATION_SEED)
+        row, frame = method_row(directory, resamples, seed)
         difference = paired_differences(frame, si_frame, resamples, seed)
-        result[traffic] = {"ppo_lsi": {**si_row, "directory": si_dir},
+        result[traffic] = {"ppo_lsi": {**si_row, "directory": str(si_dir)},
                            "ppo_lsi_rss": {**row, "directory": str(directory), "minus_ppo_lsi": difference,
                                            "verdicts": difference_verdicts(difference)}}
     return result

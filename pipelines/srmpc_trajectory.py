@@ -105,7 +105,7 @@ def main() -> None:
     parser.add_argument("--lane-change-m", type=float, default=3.0, help="leftward lateral move of the rollout [m]")
     parser.add_argument("--max-seeds", type=int, default=200, help="seeds to search")
     args = parser.parse_args()
-    config = to_objects(compose_config(["+experiment=light_traffic", "evaluation.controller=srmpc",
+    config = to_objects(compose_config(["+experiment=light_traffic", "controller=srmpc",
                                         "tracking.enabled=false"]))
     env = make_env(config)
     controller = build_controller(config, env)

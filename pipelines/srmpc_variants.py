@@ -1,8 +1,8 @@
 """DVC stage: SRMPC's variants beside the paper's SRMPC and LTV-MPC at the same planner settings.
 
-Reads the table's evaluations (results/evaluation/twin/: SRMPC, its variants, LTV-MPC and PPO-L-SI at
-conf/planner/ltv_mpc.yaml) and, at a 4 m safety margin (planner=margin_4m), SRMPC and LTV-MPC from the
-trade-off (results/evaluation/tradeoff/), each picked by what its folder's config.yaml says it is; writes
+Reads the experiments of :data:`VARIANTS` (table/: SRMPC, LTV-MPC and PPO-L-SI at conf/planner/ltv_mpc.yaml;
+variants/: SRMPC's variants; at a 4 m safety margin, SRMPC and LTV-MPC from tradeoff/), each found by the
+experiment and traffic its config.yaml names; writes
 - results/ablation.json: ``[traffic][variant]`` with the keys of table.json (metrics, ``_ci95`` intervals,
   ``outcomes``), plus ``meets_target`` and, for each SRMPC variant, ``paired_differences`` against
   the paper's SRMPC (same seeds);
@@ -18,34 +18,21 @@ import argparse
 import json
 from pathlib import Path
 
-from pipelines.reporting import DEFAULT_SETTINGS, EVALUATION, evaluations, method_row, row_with_intervals, write_outputs
+from pipelines.reporting import method_row, row_with_intervals, runs, write_outputs
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences
 
-TRADEOFF = Path("results/evaluation/tradeoff")
 VARIANTS = {
-    "ltv_mpc": (("ltv_mpc", 8.0), "LTV-MPC (same planner config)"),
-    "ppo_lsi": (("ppo_lsi", 8.0), "PPO-L-SI (the policy alone)"),
-    "paper": (("srmpc", 8.0), "SRMPC, paper (Algorithm 1)"),
-    "best_of_two": (("srmpc_best_of_two", 8.0), "(a) best of two references"),
-    "rollout_prediction": (("srmpc_rollout_prediction", 8.0), "(b) rollout's IDM prediction"),
-    "sqp": (("srmpc_sqp", 8.0), "(c) 2 SQP re-linearizations"),
-    "track_rollout": (("srmpc_track_rollout", 8.0), "(d) QP tracks the rollout"),
-    "ltv_mpc_margin_4m": (("ltv_mpc", 4.0), "LTV-MPC, planner=margin_4m"),
-    "margin_4m": (("srmpc", 4.0), "(e) SRMPC, planner=margin_4m"),
+    "ltv_mpc": ("table/ltv_mpc", "LTV-MPC (same planner config)"),
+    "ppo_lsi": ("table/ppo_lsi", "PPO-L-SI (the policy alone)"),
+    "paper": ("table/srmpc", "SRMPC, paper (Algorithm 1)"),
+    "best_of_two": ("variants/best_of_two", "(a) best of two references"),
+    "rollout_prediction": ("variants/rollout_prediction", "(b) rollout's IDM prediction"),
+    "sqp": ("variants/sqp", "(c) 2 SQP re-linearizations"),
+    "track_rollout": ("variants/track_rollout", "(d) QP tracks the rollout"),
+    "ltv_mpc_margin_4m": ("tradeoff/ltv_mpc_margin_4m", "LTV-MPC, planner=margin_4m"),
+    "margin_4m": ("tradeoff/srmpc_margin_4m", "(e) SRMPC, planner=margin_4m"),
 }
-"""Row key -> ((method, safety margin [m]) of its evaluation's config.yaml, label); the other planner settings are
-conf/planner/ltv_mpc.yaml's, the seeds the table's."""
-
-
-def rows_by_experiment() -> dict[tuple[str, str, float], Path]:
-    """(method, traffic, margin [m]) -> the folder, over the table's seeds with the default speed weights."""
-    found = {}
-    for directory, x in evaluations(EVALUATION, TRADEOFF):
-        s = x["settings"]
-        weights_default = all(s[k] == DEFAULT_SETTINGS[k] for k in ("speed_weight", "x_weight"))
-        if x["seed"] == 0 and x["simulator"] == "twin" and weights_default:
-            found[(x["method"], x["traffic"], s["safety_margin_longitudinal_m"])] = directory
-    return found
+"""Row key -> (its experiment, label); the seeds are the table's."""
 TARGET_EVENT_COST = {"light": 0.02, "dense": 0.05}
 TARGET_MIN_VX_MPS = 23.5
 
@@ -55,11 +42,11 @@ def main() -> None:
     parser.add_argument("--resamples", type=int, default=BOOTSTRAP_RESAMPLES, help="bootstrap resamples")
     parser.add_argument("--seed", type=int, default=BOOTSTRAP_SEED, help="bootstrap seed")
     args = parser.parse_args()
-    ablation, lines, found = {}, [], rows_by_experiment()
+    ablation, lines, found = {}, [], runs()
     for traffic in ("light", "dense"):
         rows, frames = {}, {}
-        for variant, ((method, margin), _) in VARIANTS.items():
-            directory = found.get((method, traffic, margin))
+        for variant, (experiment, _) in VARIANTS.items():
+            directory = found.get((experiment, traffic))
             if directory is None:
                 continue
             rows[variant], frames[variant] = method_row(directory, args.resamples, args.seed)

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from pipelines.reporting import CONFIRMATION, EVALUATION, METHODS  # the table's rows, where their episodes live
+from pipelines.reporting import EXPERIMENTS, METHODS, run_of  # the table's rows, and their experiments
 from srmpc.confidence_intervals import (
     BOOTSTRAP_RESAMPLES,
     BOOTSTRAP_SEED,
@@ -44,12 +44,20 @@ OUTPUT = ROOT / "results" / "benchmarks" / "table_vs_revision.json"
 
 
 def episodes_path(method: str, traffic: str) -> str:
-    directory = CONFIRMATION if method == "srmpc_recommended" else EVALUATION
-    return (directory / f"{method}_{traffic}" / "episodes.csv").as_posix()
+    return (run_of(EXPERIMENTS[method], traffic) / "episodes.csv").as_posix()
+
+
+def path_before_experiments(path: str) -> str:
+    """Where ``path`` (results/evaluation/table/<method>_<traffic>/...) lived before the evaluations were named by
+    their experiments: the table's under results/evaluation/twin/, the confirmation's where they are now."""
+    return path.replace("results/evaluation/table/", "results/evaluation/twin/")
 
 
 def at_revision(revision: str, path: str) -> pd.DataFrame:
     shown = subprocess.run(["git", "show", f"{revision}:{path}"], cwd=ROOT, capture_output=True, text=True)
+    if shown.returncode != 0:  # a revision before the experiment folders
+        shown = subprocess.run(["git", "show", f"{revision}:{path_before_experiments(path)}"], cwd=ROOT,
+                               capture_output=True, text=True)
     if shown.returncode != 0:
         raise SystemExit(f"table_vs_revision: --revision {revision}: no {path} there "
                          f"({shown.stderr.strip().splitlines()[-1] if shown.stderr.strip() else 'git show failed'})")

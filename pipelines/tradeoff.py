@@ -6,10 +6,10 @@ share at each grid point (the longitudinal safety margin [m], and the speed weig
 ``planner.state_weights`` where the sweep varies it); PPO-L-SI, PPO and lane keeping have no planner and
 are single points; the paper's three published rows are hollow markers.
 
-Reads every evaluation under ``results/evaluation/tradeoff/`` (DVC stage ``evaluate_tradeoff``) and, for the
-8 m points (conf/planner/ltv_mpc.yaml) and the single points, the table's own evaluations of the same seeds
-(``results/evaluation/twin/``, stages ``evaluate`` and ``evaluate_srmpc_variant``); each point's method,
-settings and traffic come from its folder's ``config.yaml``, never from its name. Writes:
+Reads the experiments of :data:`CURVE_EXPERIMENTS` (``tradeoff/<method>_<planner>``, the paper's operating point
+``operating_point/<method>``, and for the 8 m points, conf/planner/ltv_mpc.yaml, the table's own runs of the same
+seeds) and the single points' (``table/<method>``), each found by the experiment and traffic its ``config.yaml``
+names; a point's planner settings are read from that config as data. Writes:
 
 - ``results/tradeoff.json``: ``[traffic][method]`` is a list of points, each with its ``settings``,
   ``episodes``, ``mean_event_cost``, ``mean_vx``, ``mean_return`` (and the other keys of ``table.json``)
@@ -38,20 +38,26 @@ from pipelines.reporting import (
     METHODS,
     PAPER,
     cut_with_ci,
-    evaluations,
-    method_of,
     method_row,
+    planner_knobs,
     read_config,
-    settings_of,
+    run_of,
+    runs,
+    variant_name,
     write_outputs,
 )
 from srmpc.confidence_intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, paired_differences, paired_ratios
 
-TWIN = Path("results/evaluation/twin")
-SWEEP = Path("results/evaluation/tradeoff")
 TRAFFIC = ("light", "dense")
 CURVES = {"ltv_mpc": "LTV-MPC", "srmpc": "SRMPC (Algorithm 1)", "srmpc_track_rollout": "SRMPC, tracking the rollout"}
 SINGLE = ("ppo_lsi", "ppo", "lane_keeping")
+TABLE_POINT = {"ltv_mpc": "table/ltv_mpc", "srmpc": "table/srmpc", "srmpc_track_rollout": "variants/track_rollout"}
+"""Each curve's point at the table's planner (8 m): the table's own run."""
+CURVE_EXPERIMENTS = {method: [TABLE_POINT[method], f"operating_point/{method}",
+                              *(f"tradeoff/{method}_{planner}" for planner in
+                                ("margin_1m", "margin_1m_speed_weight_2", "margin_2m", "margin_4m"))]
+                     for method in CURVES}
+"""Each curve's points (experiments): the table's planner, the paper's operating point, the sweep's planners."""
 SRMPC_CURVES = ("srmpc", "srmpc_track_rollout")
 RSS = Path("results/rss.json")
 RSS_POINTS = {"ppo_lsi/ppo_lsi_rss": ("PPO-L-RSS", "ppo_lsi"),
@@ -64,48 +70,39 @@ TABLE_KEYS = ("episodes", "mean_return", "return_per_step", "mean_return_per_ste
               "mean_n_steps", "mean_vx")
 
 
-def point(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame, str, str]:
-    """One evaluation as a trade-off point: (point, its episodes, method, traffic)."""
-    config = read_config(directory)
+def point(directory: Path, resamples: int, seed: int) -> tuple[dict, pd.DataFrame]:
+    """One evaluation as a trade-off point, and its episodes."""
     row, episodes = method_row(directory, resamples, seed)
     keep = {k: v for k, v in row.items() if k.removesuffix("_ci95") in TABLE_KEYS}
-    return ({"settings": settings_of(config), "directory": str(directory), **keep}, episodes, method_of(config),
-            config["scenario"]["traffic"])
+    return {"settings": planner_knobs(read_config(directory)), "directory": str(directory), **keep}, episodes
 
 
 def collect(resamples: int, seed: int) -> tuple[dict, dict]:
     """points[traffic][method] (sorted by v_x) and episodes[directory]."""
     points: dict = {t: {m: [] for m in (*CURVES, *SINGLE)} for t in TRAFFIC}
     episodes: dict[str, pd.DataFrame] = {}
-    sweep, table = evaluations(SWEEP), evaluations(TWIN)
-    # the table's runs on the table's seeds at the default planner: the curves' 8 m points and the single points
-    table = [(d, x) for d, x in table if x["default_planner"] and x["seed"] == 0 and x["simulator"] == "twin"]
-    for t in TRAFFIC:
-        for m in (*CURVES, *SINGLE):
-            if not any(x["method"] == m and x["traffic"] == t for _, x in table):
-                raise SystemExit(f"tradeoff: no evaluation of {m} in {t} traffic at the default planner under {TWIN} "
-                                 "(run its DVC stage first)")
-    for directory, experiment in sorted(sweep + table):  # every evaluation of a curve's method or a single point
-        if experiment["method"] not in points[experiment["traffic"]]:
-            continue  # another SRMPC variant (results/ablation.md): no intervals computed for it
-        p, e, method, traffic = point(directory, resamples, seed)
-        if method in SINGLE:
-            p.pop("settings")
-        points[traffic][method].append(p)
-        episodes[p["directory"]] = e
-    for methods in points.values():
+    experiments = {**CURVE_EXPERIMENTS, **{m: [f"table/{m}"] for m in SINGLE}}
+    for traffic in TRAFFIC:
+        found = sorted((run_of(e, traffic), m) for m, names in experiments.items() for e in names)
+        for directory, method in found:  # in folder order, as the sort below keeps ties
+            p, e = point(directory, resamples, seed)
+            if method in SINGLE:
+                p.pop("settings")
+            points[traffic][method].append(p)
+            episodes[p["directory"]] = e
+    for traffic, methods in points.items():
         for curve in methods.values():
             curve.sort(key=lambda q: q["mean_vx"])
         for curve in CURVES:
-            versus_table_planner(methods[curve])
+            versus_table_planner(methods[curve], str(run_of(TABLE_POINT[curve], traffic)))
     return points, episodes
 
 
-def versus_table_planner(curve: list[dict]) -> None:
+def versus_table_planner(curve: list[dict], table_point: str) -> None:
     """Add to each point of ``curve`` ``versus_table_planner``: its mean v_x minus that of the curve's point at the
-    table's planner (the 8 m point, a run under ``results/evaluation/twin/``), and its J_c over that point's (None
+    table's planner (the 8 m point, the table's run in folder ``table_point``), and its J_c over that point's (None
     where that J_c is 0). Point estimates of two unpaired means; the paired CIs are in ``dominance``."""
-    reference = next((p for p in curve if Path(p["directory"]).is_relative_to(TWIN)), None)
+    reference = next((p for p in curve if p["directory"] == table_point), None)
     if reference is None:
         return
     for p in curve:
@@ -183,7 +180,6 @@ def paper_operating_point(traffic: str, methods: dict, episodes: dict, resamples
     return result
 
 
-CONFIRMATION = Path("results/evaluation/confirmation")
 TARGET = {"light": {"min_vx": 24.1, "max_event_cost": 0.006}, "dense": {"min_vx": 22.3, "max_event_cost": 0.036}}
 """The issue's target: at least PPO-L-SI's speed (its table row), at no more than a tenth of its J_c."""
 STRETCH = {"light": {"min_vx": 24.63, "max_event_cost": 0.215}, "dense": {"min_vx": 24.47, "max_event_cost": 0.353}}
@@ -193,24 +189,22 @@ STRETCH = {"light": {"min_vx": 24.63, "max_event_cost": 0.215}, "dense": {"min_v
 def confirmation(traffic: str, resamples: int, seed: int) -> dict | None:
     """The recommended setting on fresh seeds (100000 + i), beside LTV-MPC at its planner settings and
     PPO-L-SI on the same episodes; against the target and the stretch (strict on both axes)."""
-    roles = {"srmpc": "srmpc_recommended", "ltv_mpc": "ltv_mpc_margin_1m", "ppo_lsi": "ppo_lsi"}  # by controller
-    found = {roles[read_config(d)["evaluation"]["controller"]]: (d, x) for d, x in evaluations(CONFIRMATION)
-             if x["traffic"] == traffic and read_config(d)["evaluation"]["controller"] in roles}
-    if len(found) < len(roles):
+    found = {name: runs().get((f"confirmation/{name}", traffic)) for name in
+             ("srmpc_recommended", "ltv_mpc_margin_1m", "ppo_lsi")}
+    if None in found.values():
         return None
     rows, frames = {}, {}
-    for name in roles.values():
-        p, frames[name], _, _ = point(found[name][0], resamples, seed)
-        rows[name] = p
+    for name, directory in found.items():
+        rows[name], frames[name] = point(directory, resamples, seed)
     s, policy = rows["srmpc_recommended"], rows["ppo_lsi"]
-    recommended = read_config(found["srmpc_recommended"][0])
+    recommended = read_config(found["srmpc_recommended"])
     own_target = {"min_vx": policy["mean_vx"], "max_event_cost": policy["mean_event_cost"] / 10}
 
     def meets(goal: dict) -> bool:
         return bool(s["mean_vx"] >= goal["min_vx"] and s["mean_event_cost"] <= goal["max_event_cost"])
 
-    return {**rows, "seed": found["srmpc_recommended"][1]["seed"],
-            "recommended": {"variant": recommended["srmpc"]["variant"], "settings": settings_of(recommended)},
+    return {**rows, "seed": int(recommended["evaluation"]["seed"]),
+            "recommended": {"variant": variant_name(recommended), "settings": planner_knobs(recommended)},
             "paired_differences": {other: paired_differences(frames["srmpc_recommended"], frames[other],
                                                              resamples, seed)
                                    for other in ("ltv_mpc_margin_1m", "ppo_lsi")},

@@ -4,6 +4,8 @@ Examples::
 
     python -m srmpc +experiment=smoke
     python -m srmpc +experiment=dense_traffic evaluation.episodes=100
+    python -m srmpc +experiment=table/srmpc scenario=dense   # a published cell: results/evaluation/table/srmpc_dense
+    python -m srmpc controller=nmpc controller.initial_guess=rollout
     python -m srmpc --cfg job              # print the composed config
     python -m srmpc stage=train agent=ppo_lsi   # train PPO-L-SI (agent=ppo: the baseline)
     python -m srmpc stage=train_sb3 agent=ppo agent.name=ppo_sb3   # Stable-Baselines3's PPO, same settings
@@ -29,8 +31,8 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from srmpc.config.compose import ConfigError, compose_config, recorded_yaml, to_objects
-from srmpc.config.schema import Config, Stage, register_schema
+from srmpc.config.compose import ConfigError, compose_config, recorded_yaml, to_objects, with_experiment_name
+from srmpc.config.schema import Config, Stage, controller_label, register_schema
 from srmpc.errors import FileFault, describe_file_fault
 from srmpc.output_lock import OutputDirectoryBusy, OutputDirectoryUnwritable, exclusive_output_dir
 from srmpc.tracking import TrackingStoreUnusable, check_tracking_store, tracked_run
@@ -80,11 +82,10 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
         run_name = f"train-{config.agent.name}-sb3-{config.scenario.traffic}"
     elif config.stage is Stage.train:
         run_name = f"train-{config.agent.name}-{config.agent.task.value}-{config.scenario.traffic}"
+    elif config.experiment:
+        run_name = f"{config.experiment}_{config.scenario.traffic}"  # its identity, as its folder's name
     else:
-        controller = config.evaluation.controller.value
-        if controller == "srmpc":
-            controller = f"srmpc-{config.srmpc.variant}"
-        run_name = f"{config.stage.value}-{controller}-{config.scenario.traffic}"
+        run_name = f"{config.stage.value}-{controller_label(config.controller)}-{config.scenario.traffic}"
     from srmpc.sweep import in_multirun, prepare_tracking_store
 
     # A sweep's jobs, or trainings side by side (pipelines/train_runs.py), start together: the first
@@ -120,6 +121,7 @@ register_schema()
 def hydra_main(cfg: DictConfig) -> None:
     signal.signal(signal.SIGTERM, _raise_on_sigterm)
     try:
+        with_experiment_name(cfg, HydraConfig.get().runtime.choices.get("experiment"))
         summary = run(cfg, Path(HydraConfig.get().runtime.output_dir))
     except (ConfigError, OutputDirectoryUnwritable) as error:
         _fail(str(error))

@@ -1,4 +1,4 @@
-"""The one controller factory: the scenario's env and ``evaluation.controller`` for it, from a composed config.
+"""The one controller factory: the scenario's env and ``controller`` for it, from a composed config.
 
 The evaluation stage, the trajectory figure, the episode videos and the latency benchmark all build their
 controllers here, so a controller is built one way wherever it runs. It sits above ``config`` (it reads the
@@ -23,7 +23,7 @@ from srmpc.config.schema import Config, ControllerName, SimulatorName
 from srmpc.controllers import Controller
 from srmpc.controllers.lane_keeping import LaneKeepingController, LaneKeepingGains
 from srmpc.controllers.ltv_mpc import LtvMpcController
-from srmpc.controllers.nmpc import NmpcController, NmpcInitialGuess
+from srmpc.controllers.nmpc import POLICY_GUESSES, NmpcController
 from srmpc.controllers.policy import PolicyController
 from srmpc.controllers.scenario_ocp import ocp_config
 from srmpc.controllers.srmpc import SceneSource, SrmpcController
@@ -37,11 +37,6 @@ from srmpc.sim.simulator import TwinSimulator
 from srmpc.sim.single_env import HighwayEnvStartTwinEnv, TwinScenarioEnv
 from srmpc.sim.state import SceneState
 
-NMPC_FROM_POLICY = {ControllerName.nmpc_rollout: NmpcInitialGuess.policy_rollout,
-                    ControllerName.nmpc_best_of_two: NmpcInitialGuess.best_of_two}
-NMPC_WITHOUT_POLICY = {ControllerName.nmpc: NmpcInitialGuess.shifted_previous,
-                       ControllerName.nmpc_constant_velocity: NmpcInitialGuess.constant_velocity}
-"""The NMPC controllers that roll out ``srmpc.policy``, and their initial guess."""
 REPOSITORY = Path(__file__).resolve().parents[1]
 """The repository root: default policy files are its results/training/<agent>/policy.pt, from any directory."""
 
@@ -73,23 +68,24 @@ def _default_policy_path(agent: str, path: str | None) -> Path:
 
 
 def policy_file(config: Config) -> tuple[Path, str, str] | None:
-    """(file, agent, config key) of the policy the evaluated controller runs; None when it runs none."""
-    name = config.evaluation.controller
-    if name in (ControllerName.srmpc, *NMPC_FROM_POLICY):
-        agent, path, key = config.srmpc.policy.value, config.srmpc.policy_path, "srmpc.policy_path"
-    elif name in (ControllerName.ppo_lsi, ControllerName.ppo):
-        agent, path, key = name.value, config.evaluation.policy_path, "evaluation.policy_path"
-    else:
+    """(file, agent, config key) of the policy the controller runs or rolls out; None when it runs none."""
+    controller = config.controller
+    if controller.name is ControllerName.nmpc and controller.initial_guess not in POLICY_GUESSES:
         return None
-    return _default_policy_path(agent, path), agent, key
+    if controller.name not in (ControllerName.policy, ControllerName.srmpc, ControllerName.nmpc):
+        return None
+    key = "controller.policy_path" if controller.policy_path else "controller.policy"
+    return _default_policy_path(controller.policy, controller.policy_path), controller.policy, key
 
 
-def load_policy(config: Config, agent: str, path: str | None, key: str) -> MlpPolicy:
-    """The deterministic actor of ``agent`` (TanhNormal mode) from ``path`` or its training output."""
+def load_policy(config: Config) -> MlpPolicy:
+    """The deterministic actor (TanhNormal mode) of the policy the controller runs (:func:`policy_file`)."""
     scenario = config.scenario
-    file = _default_policy_path(agent, path)
+    file, agent, key = policy_file(config)
     if not file.is_file():
-        raise ConfigError(f"{key}={str(file)!r}: no such policy file (train first: stage=train agent={agent})")
+        value = config.controller.policy_path or agent
+        raise ConfigError(f"{key}={value!r}: no such policy file {str(file)!r} (train first: stage=train "
+                          f"agent={agent})")
     low = np.array([-scenario.steering_max_rad, scenario.acceleration_min_mps2])
     high = np.array([scenario.steering_max_rad, scenario.acceleration_max_mps2])
     return PolicyController.from_policy_file(file, low, high).policy
@@ -110,41 +106,30 @@ def scene_source(env: gymnasium.Env) -> SceneSource:
 
 
 def build_controller(config: Config, env: gymnasium.Env) -> Controller:
-    """The controller named by ``evaluation.controller`` for ``env``, built from the config's plain values."""
-    scenario = config.scenario
-    name = config.evaluation.controller
+    """The controller named by ``controller.name`` for ``env``, built from the config's plain values."""
+    scenario, controller = config.scenario, config.controller
+    name = controller.name
     if name is ControllerName.lane_keeping:
         return LaneKeepingController(
             scenario.steering_max_rad, scenario.acceleration_min_mps2, scenario.acceleration_max_mps2,
             LaneKeepingGains(target_speed_mps=scenario.reward.vx_ref_mps),
         )
+    if name is ControllerName.policy:
+        return PolicyController(load_policy(config))
+    ocp, y_ref = planner_ocp(config)
+    tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
+                                               control_period_s=ocp.control_period_s)
+    planner = LtvMpcPlanner(ocp, config.planner.solver)
     if name is ControllerName.ltv_mpc:
-        ocp, y_ref = planner_ocp(config)
-        tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
-                                                   control_period_s=ocp.control_period_s)
-        return LtvMpcController(LtvMpcPlanner(ocp, config.planner.solver), tracking)
+        return LtvMpcController(planner, tracking)
     if name is ControllerName.srmpc:
-        ocp, y_ref = planner_ocp(config)
-        srmpc = config.srmpc
-        policy = load_policy(config, srmpc.policy.value, srmpc.policy_path, "srmpc.policy_path")
-        tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
-                                                   control_period_s=ocp.control_period_s)
-        return SrmpcController(policy, LtvMpcPlanner(ocp, config.planner.solver), scene_source(env), tracking,
-                               srmpc)  # SrmpcConfig is the SrmpcSettings schema plus the policy's name and file
-    if name in (*NMPC_WITHOUT_POLICY, *NMPC_FROM_POLICY):
-        ocp, y_ref = planner_ocp(config)
-        tracking = lane_keeping_tracking_reference(ocp.horizon, y_ref, scenario.reward.vx_ref_mps,
-                                                   control_period_s=ocp.control_period_s)
-        if name in NMPC_WITHOUT_POLICY:
-            return NmpcController(NmpcSolver(ocp), LtvMpcPlanner(ocp, config.planner.solver), tracking,
-                                  NMPC_WITHOUT_POLICY[name])
-        policy = load_policy(config, config.srmpc.policy.value, config.srmpc.policy_path, "srmpc.policy_path")
-        return NmpcController(NmpcSolver(ocp), LtvMpcPlanner(ocp, config.planner.solver), tracking,
-                              NMPC_FROM_POLICY[name], policy, scene_source(env))
-    if name in (ControllerName.ppo_lsi, ControllerName.ppo):
-        return PolicyController(load_policy(config, name.value, config.evaluation.policy_path,
-                                            "evaluation.policy_path"))
-    raise ConfigError(f"evaluation.controller={name.value}: not implemented")
+        return SrmpcController(load_policy(config), planner, scene_source(env), tracking, controller.srmpc)
+    if name is ControllerName.nmpc:
+        if controller.initial_guess not in POLICY_GUESSES:
+            return NmpcController(NmpcSolver(ocp), planner, tracking, controller.initial_guess)
+        return NmpcController(NmpcSolver(ocp), planner, tracking, controller.initial_guess, load_policy(config),
+                              scene_source(env))
+    raise ConfigError(f"controller={name.value}: not implemented")
 
 
 def make_env(config: Config) -> gymnasium.Env:
@@ -157,7 +142,7 @@ def make_env(config: Config) -> gymnasium.Env:
 
 
 def make_env_and_controller(config: Config) -> tuple[gymnasium.Env, Controller]:
-    """The scenario on ``evaluation.simulator`` and ``evaluation.controller`` for it: what an evaluation,
+    """The scenario on ``evaluation.simulator`` and ``controller`` for it: what an evaluation,
     and each of its worker processes, builds once."""
     env = make_env(config)
     try:

@@ -65,7 +65,7 @@ def intervals_from_episodes(episodes_csv: Path) -> dict | None:
 
 def evaluation_table(summary: Mapping[str, Any], intervals: Mapping[str, Any] | None) -> Table:
     """Metric | value | 95% CI for an evaluation summary (``summary.json``)."""
-    title = (f"{summary.get('controller', '?')}, {summary.get('traffic', '?')} traffic, "
+    title = (f"{summary.get('experiment') or summary.get('controller', '?')}, {summary.get('traffic', '?')} traffic, "
              f"{summary.get('episodes', '?')} episodes on {summary.get('simulator', '?')}")
     table = Table(title=Text(title), box=box.SIMPLE_HEAD, title_justify="left", pad_edge=False)
     table.add_column("metric")

@@ -6,16 +6,16 @@ working directory (the repository root in every documented command). ``make ui``
 Experiments carry the tag ``mlflow.experimentKind=custom_model_development`` (set on creation and on
 every run start), which marks them as model training rather than GenAI. MLflow 3.17's UI itself picks
 its view by a switch of its own, so :func:`runs_table_url` names it. Runs are tagged ``stage``,
-``method``, ``traffic`` and ``seed``. When the environment variable ``SRMPC_PARENT_RUN_ID`` names a
-run of the same store and experiment, the run is nested under it: ``make reproduce`` starts one parent
-run per pipeline invocation (``pipelines/mlflow_parent_run.py``) and every DVC stage's ``python -m srmpc``
-becomes its child; without the variable (or with an unknown id) a run stands alone.
+``experiment`` (a published run's identity, also its name), ``method``, ``traffic`` and ``seed``. When
+the environment variable ``SRMPC_PARENT_RUN_ID`` names a run of the same store and experiment, the run
+is nested under it: ``make reproduce`` starts one parent run per pipeline invocation
+(``pipelines/mlflow_parent_run.py``) and every DVC stage's ``python -m srmpc`` becomes its child;
+without the variable (or with an unknown id) a run stands alone.
 """
 
 from __future__ import annotations
 
 import contextlib
-import functools
 import json
 import os
 import socket
@@ -179,87 +179,25 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
     return flat
 
 
-NAMED_METHODS = {("srmpc_track_rollout", "margin_1m"): "srmpc_recommended"}
-"""Methods that the results table names by a role rather than by their settings: (method, planner setting)
--> name. ``srmpc_recommended`` is SRMPC tracking the policy's rollout with the 1 m safety region
-(conf/experiment/confirmation/srmpc_recommended.yaml; the table's row of that name)."""
-
-
-@functools.lru_cache(maxsize=1)
-def _planner_defaults() -> dict[str, Any]:
-    from srmpc.config.schema import PlannerConfig
-
-    return vars(PlannerConfig())
-
-
-def planner_setting(planner: Mapping[str, Any] | None) -> str:
-    """The planner setting of a composed config's ``planner`` section, named by what it changes from the
-    planner's defaults (srmpc/config/schema.py ``PlannerConfig``): ``default``; ``margin_<m>m`` for the
-    longitudinal safety margin (``margin_1m``, ``margin_4m``); ``speed_weight_<w>`` for a changed speed
-    weight of the tracking cost (``state_weights[3]``); ``<key>_<value>`` for anything else; joined by ``_``
-    (``margin_1m_speed_weight_2``). Read from the values, never from a config file's or folder's name."""
-    defaults, parts = _planner_defaults(), []
-    for key, value in (planner or {}).items():
-        default = defaults.get(key, value)
-        if value == default or (isinstance(value, list | tuple) and list(value) == list(default)):
-            continue
-        if key == "safety_margin_longitudinal_m":
-            parts.insert(0, f"margin_{float(value):g}m")
-        elif key == "state_weights" and len(value) == len(default) and all(
-                a == b for i, (a, b) in enumerate(zip(value, default, strict=True)) if i != 3):
-            parts.append(f"speed_weight_{float(value[3]):g}")
-        else:
-            parts.append(f"{key}_{value}")
-    return "_".join(parts) or "default"
-
-
 def _plain(value: Any) -> Any:
     return getattr(value, "value", value)  # an Enum of the structured config -> its value
 
 
-def evaluated_method(evaluation: Mapping[str, Any], srmpc: Mapping[str, Any]) -> str:
-    """The method an evaluation config runs, named by its settings: the controller, SRMPC with its variant
-    unless that is the paper's (``srmpc_best_of_two``), a policy controller given another agent's policy
-    file by the agent (``results/training/ppo_sb3/policy.pt`` or ``.../ppo_sb3/seed_0/policy.pt``: ``ppo_sb3``),
-    and SRMPC rolling out another agent's policy with that agent appended (``srmpc_ppo_lsi_rss``)."""
-    method = _plain(evaluation.get("controller"))
-    variant = _plain(srmpc.get("variant"))
-    if method == "srmpc" and variant not in (None, "paper"):
-        method = f"srmpc_{variant}"
-    policy_path = evaluation.get("policy_path")
-    if method in ("ppo", "ppo_lsi") and policy_path and Path(policy_path).name == "policy.pt":
-        method = _agent_of(policy_path)
-    proposer_path = srmpc.get("policy_path")
-    if method and method.startswith("srmpc") and proposer_path and Path(proposer_path).name == "policy.pt":
-        proposer = _agent_of(proposer_path)
-        if proposer != _plain(srmpc.get("policy")):
-            method = f"{method}_{proposer}"
-    return method
-
-
-def _agent_of(policy_path: str) -> str:
-    """The agent of results/training/<agent>/policy.pt or .../<agent>/seed_<n>/policy.pt."""
-    agent = Path(policy_path).parent
-    return (agent.parent if agent.name.startswith("seed_") else agent).name
-
-
 def run_tags(params: Mapping[str, Any]) -> dict[str, str]:
-    """``stage``, ``method``, ``traffic`` and ``seed`` of a run, from its composed config, for filtering
-    and grouping in the UI. method: the agent (training) or the controller, SRMPC with its variant
-    unless that is the paper's (``srmpc_best_of_two``), a policy controller given another agent's policy file
-    by the agent (``evaluation.policy_path=results/training/ppo_sb3/policy.pt``: ``ppo_sb3``), and a
-    method with a planner setting of :data:`NAMED_METHODS` by its name there (``srmpc_recommended``)."""
+    """``stage``, ``experiment``, ``method``, ``traffic`` and ``seed`` of a run, from its composed config, for
+    filtering and grouping in the UI. experiment: the run's identity (``+experiment=<path>``); method: the agent
+    (training) or the controller (``controller.name``, a policy controller's agent: ``policy-ppo_sb3``)."""
     stage = _plain(params.get("stage"))
     scenario, agent = params.get("scenario") or {}, params.get("agent") or {}
-    evaluation, srmpc = params.get("evaluation") or {}, params.get("srmpc") or {}
+    evaluation, controller = params.get("evaluation") or {}, params.get("controller") or {}
     if stage in ("train", "train_sb3"):
         method, seed = _plain(agent.get("name")), agent.get("seed")
     else:
-        method, seed = evaluated_method(evaluation, srmpc), evaluation.get("seed")
-        planner = params.get("planner")
-        if isinstance(planner, Mapping):
-            method = NAMED_METHODS.get((method, planner_setting(planner)), method)
-    tags = {"stage": stage, "method": method, "traffic": _plain(scenario.get("traffic")), "seed": seed}
+        method, seed = _plain(controller.get("name")), evaluation.get("seed")
+        if method == "policy":
+            method = f"policy-{controller.get('policy')}"
+    tags = {"stage": stage, "experiment": params.get("experiment"), "method": method,
+            "traffic": _plain(scenario.get("traffic")), "seed": seed}
     return {key: str(value) for key, value in tags.items() if value not in (None, "")}
 
 

@@ -17,7 +17,7 @@ from srmpc.scenario.parameters import ScenarioParameters
 
 EXPERIMENTS = sorted(p.relative_to(CONFIG_DIR / "experiment").with_suffix("").as_posix()
                      for p in (CONFIG_DIR / "experiment").rglob("*.yaml"))
-GROUPS = ("scenario", "agent", "planner", "srmpc", "evaluation", "tracking")
+GROUPS = ("scenario", "agent", "planner", "controller", "evaluation", "tracking")
 
 
 def _flat(values: dict, prefix: str = "") -> dict[str, Any]:
@@ -79,14 +79,15 @@ def assert_holds(cfg: DictConfig, values: dict[str, Any], where: str) -> None:
 
 def test_the_paper_experiments_exist():
     assert {"light_traffic", "dense_traffic", "smoke"} <= set(EXPERIMENTS)
-    assert {"multiplier_ablation/ppo_lsi", "multiplier_ablation/ppo"} <= set(EXPERIMENTS)
+    assert {"training/multiplier_ablation/ppo_lsi", "training/multiplier_ablation/ppo"} <= set(EXPERIMENTS)
+    assert {"table/srmpc", "table/ltv_mpc", "operating_point/ltv_mpc", "nmpc/rollout"} <= set(EXPERIMENTS)
 
 
 def test_file_values_reads_defaults_then_own_values():
     """The reader the two tests below check the composition against, on files whose values are written here."""
     assert file_values(CONFIG_DIR / "experiment" / "confirmation" / "srmpc_recommended.yaml") == {
-        "srmpc.variant": "track_rollout", "srmpc.tracking": "policy_rollout", "evaluation.controller": "srmpc",
-        "planner.safety_margin_longitudinal_m": 1.0, "evaluation.seed": 100000}
+        "controller.srmpc.tracking": "policy_rollout", "planner.safety_margin_longitudinal_m": 1.0,
+        "evaluation.seed": 100000}
     assert file_values(CONFIG_DIR / "planner" / "paper_operating_point.yaml", "planner") == {
         "planner.slack_price_scale": 0.05, "planner.state_weights": [0.0, 0.5, 20.0, 10.0],
         "planner.safety_margin_longitudinal_m": 1.0}
@@ -98,8 +99,16 @@ def test_every_experiment_composes_into_the_schema_with_the_values_its_file_sets
     options) is in the composed config and in its typed objects; a group it names nothing of is the default's."""
     cfg = compose_config([f"+experiment={experiment}"])
     values = file_values(CONFIG_DIR / "experiment" / f"{experiment}.yaml")
-    assert values, experiment
+    assert values or experiment == "table/srmpc", experiment  # the table's SRMPC is conf/config.yaml itself
+    published = "/" in experiment and not experiment.startswith("training/")
+    if published:  # it evaluates into its own folder (srmpc.config.compose.with_experiment_name)
+        values.pop("evaluation.output_dir", None)
+        assert cfg.evaluation.output_dir == f"results/evaluation/{experiment}_light"
+        cfg.evaluation.output_dir = None
+    else:
+        assert cfg.evaluation.output_dir is None
     assert_holds(cfg, values, experiment)
+    assert cfg.experiment == experiment
     assert isinstance(to_objects(cfg).scenario, ScenarioParameters)
     groups = {key.split(".")[0] for key in values}
     base = compose_config([])
@@ -134,16 +143,18 @@ def test_dense_traffic_differs_from_light_only_in_traffic():
         ("scenario.typo=1", ["scenario.typo", "'typo'"]),
         ("scenario=foo", ["scenario=foo", "dense, light"]),
         ("+experiment=nope", ["experiment=nope", "smoke"]),
-        ("evaluation.controller=zzz", ["evaluation.controller", "'zzz'"]),
+        ("controller=zzz", ["controller=zzz", "ltv_mpc"]),
+        ("evaluation.controller=nmpc_rollout", ["evaluation.controller is gone", "controller.initial_guess=rollout"]),
+        ("controller.initial_guess=rollout", ["controller.initial_guess=rollout", "controller=nmpc only"]),
         ("scenario.mean_spawn_gap_m=-1", ["scenario.mean_spawn_gap_m=-1.0"]),
         ("scenario.safety_index.n=0", ["scenario.safety_index.n=0.0"]),
-        ("srmpc.relinearizations=-1", ["srmpc.relinearizations=-1"]),
+        ("controller.srmpc.relinearizations=-1", ["relinearizations=-1"]),
         ("evaluation.episodes=0", ["evaluation.episodes=0"]),
         ("evaluation.seed=-3", ["evaluation.seed=-3"]),
-        ("srmpc.selection=zzz", ["srmpc.selection", "'zzz'"]),
-        ("srmpc=nope", ["srmpc=nope", "best_of_two"]),
-        ("srmpc.variant=track_rollout", ["srmpc.variant='track_rollout'", "tracking=lane_centre", "variant 'paper'"]),
-        ("srmpc.tracking=policy_rollout", ["srmpc.variant='paper'", "variant 'track_rollout'"]),
+        ("controller.srmpc.selection=zzz", ["controller.srmpc.selection", "'zzz'"]),
+        ("srmpc=nope", ["srmpc=nope", "srmpc is gone", "controller.srmpc"]),
+        ("srmpc.variant=track_rollout", ["srmpc.variant is gone"]),
+        ("+policy=ppo_lsi_rss", ["policy is gone", "controller.policy=<agent>"]),
     ],
 )
 def test_bad_config_is_one_clear_error(override, fragments):
@@ -235,12 +246,14 @@ def test_cli_refuses_an_unbounded_horizon_in_seconds(tmp_path):
         "srmpc: config error: planner.horizon_steps=100000: must be an integer in [2, 400]"]
 
 
-def test_each_srmpc_option_is_named_by_the_variant_its_settings_make():
-    """conf/srmpc/<name>.yaml sets ``variant: <name>``, and that is what its settings make (variant_of)."""
-    from srmpc.config.schema import variant_of
+def test_each_variant_experiment_is_named_by_the_variant_its_settings_make():
+    """conf/experiment/variants/<name>.yaml is SRMPC's variant ``<name>`` (srmpc.controllers.srmpc.variant_of)."""
+    from srmpc.controllers.srmpc import variant_of
 
-    for option in sorted(p.stem for p in (CONFIG_DIR / "srmpc").glob("*.yaml")):
-        srmpc = to_objects(compose_config([f"srmpc={option}"])).srmpc
-        assert srmpc.variant == variant_of(srmpc) == option
-    both = to_objects(compose_config(["srmpc=sqp", "srmpc.tracking=policy_rollout", "srmpc.variant=sqp+track_rollout"]))
-    assert both.srmpc.variant == "sqp+track_rollout"
+    names = sorted(p.stem for p in (CONFIG_DIR / "experiment" / "variants").glob("*.yaml"))
+    assert names == ["best_of_two", "rollout_prediction", "sqp", "track_rollout"]
+    for name in names:
+        assert variant_of(to_objects(compose_config([f"+experiment=variants/{name}"])).controller.srmpc) == name
+    both = to_objects(compose_config(["controller.srmpc.relinearizations=2",
+                                      "controller.srmpc.tracking=policy_rollout"]))
+    assert variant_of(both.controller.srmpc) == "sqp+track_rollout"

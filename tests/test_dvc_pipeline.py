@@ -5,7 +5,7 @@
 - every stage of ``dvc.yaml`` is in ``dvc.lock`` with the command it renders to there, so the lock describes
   this pipeline, not an older one;
 - each training directory's committed ``config.yaml`` is what its stage's run composes to today: a run
-  defined in ``conf/experiment/multiplier_ablation/`` (or by agent and seed) resumes in its own directory
+  defined in ``conf/experiment/training/multiplier_ablation/`` (or by agent and seed) resumes in its own directory
   instead of being refused there.
 """
 

@@ -117,7 +117,7 @@ def test_a_failing_episode_stops_the_workers_after_the_finished_prefix():
 
 def test_sigterm_stops_the_workers_and_keeps_the_finished_episodes(tmp_path):
     out = tmp_path / "eval"
-    command = [sys.executable, "-m", "srmpc", "+experiment=smoke", "evaluation.controller=lane_keeping",
+    command = [sys.executable, "-m", "srmpc", "+experiment=smoke", "controller=lane_keeping",
                "evaluation.episodes=100000", "evaluation.workers=2", "tracking.enabled=false",
                f"evaluation.output_dir={out}", f"hydra.run.dir={tmp_path / 'hydra'}"]
     process = subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,

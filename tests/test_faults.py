@@ -77,7 +77,7 @@ def _one_line(result: subprocess.CompletedProcess) -> str:
     ("case", "code", "expected"),
     [
         ("truncated policy", 1, "srmpc: error: {policy}: not a readable policy file (truncated or corrupted?"),
-        ("missing policy", 2, "srmpc: config error: evaluation.policy_path='{missing}': no such policy file"),
+        ("missing policy", 2, "srmpc: config error: controller.policy_path='{missing}': no such policy file"),
         ("unwritable output", 2, "srmpc: config error: evaluation.output_dir={blocked}/eval: cannot write there"),
     ],
 )
@@ -89,11 +89,11 @@ def test_cli_runtime_fault_is_one_line_naming_the_path(tmp_path, case, code, exp
     blocked.write_text("not a directory\n")
     missing = tmp_path / "results" / "training" / "ppo_lsi" / "policy.pt"
     overrides = {
-        "truncated policy": ["evaluation.controller=ppo_lsi", f"evaluation.policy_path={policy}",
+        "truncated policy": ["controller=policy", f"controller.policy_path={policy}",
                              f"evaluation.output_dir={tmp_path / 'eval'}"],
-        "missing policy": ["evaluation.controller=ppo_lsi", f"evaluation.policy_path={missing}",
+        "missing policy": ["controller=policy", f"controller.policy_path={missing}",
                            f"evaluation.output_dir={tmp_path / 'eval'}"],
-        "unwritable output": ["evaluation.controller=lane_keeping", f"evaluation.output_dir={blocked / 'eval'}"],
+        "unwritable output": ["controller=lane_keeping", f"evaluation.output_dir={blocked / 'eval'}"],
     }[case]
     result = _cli(tmp_path, *overrides)
     assert result.returncode == code, result.stderr[-3000:]

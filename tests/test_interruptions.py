@@ -22,7 +22,7 @@ from srmpc.tracking import HOST_TAG, PID_TAG, Run, tracked_run
 
 ROOT = Path(__file__).resolve().parents[1]
 EPISODES = 40
-OVERRIDES = ["evaluation.controller=lane_keeping", f"evaluation.episodes={EPISODES}", "scenario.episode_steps=100"]
+OVERRIDES = ["controller=lane_keeping", f"evaluation.episodes={EPISODES}", "scenario.episode_steps=100"]
 if "workers" in {f.name for f in fields(EvaluationConfig)}:
     OVERRIDES.append("evaluation.workers=1")
 EXPERIMENT = "srmpc-interruption-test"

@@ -1,5 +1,5 @@
 """The NMPC controllers in closed loop
-(``evaluation.controller=nmpc|nmpc_constant_velocity|nmpc_rollout|nmpc_best_of_two``)."""
+(``controller=nmpc controller.initial_guess=constant_velocity|shifted|rollout|best_of_two``)."""
 
 from __future__ import annotations
 
@@ -13,19 +13,18 @@ from srmpc.sim.single_env import TwinScenarioEnv
 
 STEPS = 12
 """Control steps per episode (2.4 s): short, the NMPC takes ~10 ms a step."""
-GUESS = {"nmpc": NmpcInitialGuess.shifted_previous, "nmpc_constant_velocity": NmpcInitialGuess.constant_velocity,
-         "nmpc_rollout": NmpcInitialGuess.policy_rollout, "nmpc_best_of_two": NmpcInitialGuess.best_of_two}
-"""Where each controller's SQP starts (srmpc/config/schema.py's ControllerName documents each)."""
+GUESS = {guess.value: guess for guess in NmpcInitialGuess}
+"""Where the SQP starts (srmpc/controllers/nmpc.py documents each)."""
 
 
 @pytest.mark.parametrize("controller", sorted(GUESS))
 def test_nmpc_controller_drives_short_dense_episodes(controller):
     config = to_objects(compose_config(["+experiment=dense_traffic", "tracking.enabled=false",
-                                        f"evaluation.controller={controller}"]))
+                                        "controller=nmpc", f"controller.initial_guess={controller}"]))
     env = TwinScenarioEnv(config.scenario)
     nmpc = build_controller(config, env)
     assert isinstance(nmpc, NmpcController) and nmpc.initial_guess is GUESS[controller]
-    assert (policy_file(config) is None) == (controller in ("nmpc", "nmpc_constant_velocity"))
+    assert (policy_file(config) is None) == (controller in ("shifted", "constant_velocity"))
     low = np.array([-config.scenario.steering_max_rad, config.scenario.acceleration_min_mps2])
     high = np.array([config.scenario.steering_max_rad, config.scenario.acceleration_max_mps2])
     for seed in (0, 1):
@@ -46,7 +45,7 @@ def test_nmpc_controller_drives_short_dense_episodes(controller):
         assert solved_by_guess == outcomes["solved"] >= steps - 2  # the SQP converges on nearly every step
         if nmpc.initial_guess is NmpcInitialGuess.constant_velocity:  # never the last plan, never the policy
             assert outcomes["solved_from_lane_following"] == outcomes["solved"]
-        elif nmpc.initial_guess is NmpcInitialGuess.shifted_previous:
+        elif nmpc.initial_guess is NmpcInitialGuess.shifted:
             assert outcomes["solved_from_policy"] == 0 and outcomes["solved_from_shifted"] > 0
         else:
             assert outcomes["solved_from_policy"] > 0

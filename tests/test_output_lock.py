@@ -88,7 +88,7 @@ def test_sigkill_leaves_no_stale_lock(tmp_path, start_process):
 
 def test_two_evaluations_into_one_directory(tmp_path, start_process):
     out, experiment, episodes = tmp_path / "eval", "srmpc-lock-eval-test", 10_000  # runs until the test ends it
-    command = [sys.executable, "-m", "srmpc", "evaluation.controller=lane_keeping", f"evaluation.episodes={episodes}",
+    command = [sys.executable, "-m", "srmpc", "controller=lane_keeping", f"evaluation.episodes={episodes}",
                "evaluation.workers=1", "scenario.episode_steps=100", f"evaluation.output_dir={out}",
                *_tracking(tmp_path, experiment)]
     first = start_process([*command, f"hydra.run.dir={tmp_path / 'hydra1'}"])

@@ -249,7 +249,7 @@ def test_default_controller_is_srmpc_with_the_paper_variant():
 
 
 def test_missing_policy_file_is_one_config_error(tmp_path):
-    config = _srmpc_config(f"srmpc.policy_path={tmp_path / 'none.pt'}")
+    config = _srmpc_config(f"controller.policy_path={tmp_path / 'none.pt'}")
     with pytest.raises(ConfigError, match="srmpc.policy_path"):
         build_controller(config, TwinScenarioEnv(config.scenario))
 

@@ -54,7 +54,7 @@ def test_seed_sweep_on_submitit_local_runs_each_job_in_its_own_directory_and_res
 
 def test_evaluation_sweep_writes_each_controller_into_its_job_directory(tmp_path):
     sweep = tmp_path / "sweep"
-    result = _srmpc(tmp_path, "-m", "+experiment=smoke", "evaluation.controller=lane_keeping,ltv_mpc",
+    result = _srmpc(tmp_path, "-m", "+experiment=smoke", "controller=lane_keeping,ltv_mpc",
                     "evaluation.workers=1", "tracking.enabled=false", "hydra/launcher=local",
                     f"hydra.sweep.dir={sweep}")
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]

@@ -10,10 +10,10 @@ from typing import Any
 
 from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException, MissingConfigException
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
-from srmpc.config.schema import register_schema
+from srmpc.config.schema import Stage, register_schema
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "conf"
 """The repository's ``conf/`` directory."""
@@ -41,18 +41,88 @@ def describe_config_error(error: BaseException) -> str:
     if isinstance(cause, OmegaConfBaseException):
         message = (getattr(cause, "msg", None) or str(cause)).splitlines()[0]
         key = getattr(cause, "full_key", None)
+        if key in RENAMED:
+            return f"{key}: {key} is gone; write {RENAMED[key]}"
         return f"{key}: {message}" if key else message
     return str(error).splitlines()[0]
 
 
+RENAMED = {
+    "evaluation.controller": "controller=<name> (lane_keeping, policy, ltv_mpc, srmpc, nmpc)",
+    "evaluation.policy_path": "controller.policy_path (or controller.policy=<agent>)",
+    "srmpc.policy": "controller.policy",
+    "srmpc.policy_path": "controller.policy_path",
+    "srmpc.variant": "nothing: the run's name is its experiment",
+    "srmpc.selection": "controller.srmpc.selection",
+    "srmpc.prediction": "controller.srmpc.prediction",
+    "srmpc.relinearizations": "controller.srmpc.relinearizations",
+    "srmpc.tracking": "controller.srmpc.tracking",
+    "srmpc": "controller=srmpc controller.srmpc.<field>=<value> (a variant: +experiment=variants/<name>)",
+    "policy": "controller.policy=<agent>",
+}
+"""Keys and groups that moved into ``controller`` (conf/controller/), each with what to write now."""
+OLD_CONTROLLERS = {
+    "ppo": "controller=policy controller.policy=ppo", "ppo_lsi": "controller=policy controller.policy=ppo_lsi",
+    "nmpc": "controller=nmpc controller.initial_guess=shifted",
+    "nmpc_constant_velocity": "controller=nmpc controller.initial_guess=constant_velocity",
+    "nmpc_rollout": "controller=nmpc controller.initial_guess=rollout",
+    "nmpc_best_of_two": "controller=nmpc controller.initial_guess=best_of_two",
+}
+"""The old ``evaluation.controller`` values with no controller of that name, and what to write now."""
+
+
+def refuse_old_spellings(overrides: Sequence[str]) -> None:
+    """Raise :class:`ConfigError` naming the new spelling for an override of a key or group that moved
+    (:data:`RENAMED`): ``evaluation.controller=nmpc_rollout`` -> ``controller=nmpc
+    controller.initial_guess=rollout``."""
+    for override in overrides:
+        key, _, value = override.lstrip("+~").partition("=")
+        new = RENAMED.get(key)
+        if new is None:
+            continue
+        if key == "evaluation.controller":
+            new = OLD_CONTROLLERS.get(value, f"controller={value}")
+        raise ConfigError(f"{override}: {key} is gone; write {new}")
+
+
+def with_experiment_name(cfg: DictConfig, experiment: str | None) -> DictConfig:
+    """``cfg`` named by the ``+experiment=<path>`` it was composed with (``experiment``: Hydra's choice), its run's
+    identity. A published experiment, one under a question folder (conf/experiment/<question>/<name>.yaml) other
+    than :data:`NOT_EVALUATIONS`, evaluates into results/evaluation/<question>/<name>_<traffic>/ unless
+    ``evaluation.output_dir`` says otherwise."""
+    if cfg.get("experiment") not in (None, experiment):
+        raise ConfigError(f"experiment={cfg.experiment}: the run's name is its +experiment=<path>, not set by hand")
+    cfg.experiment = experiment
+    question = experiment.split("/")[0] if experiment and "/" in experiment else None
+    if question and question not in NOT_EVALUATIONS and Stage(cfg.stage) is Stage.evaluate \
+            and cfg.evaluation.output_dir is None:
+        cfg.evaluation.output_dir = f"{EVALUATION_ROOT}/{experiment}_{cfg.scenario.traffic}"
+    return cfg
+
+
+EVALUATION_ROOT = "results/evaluation"
+"""Where published experiments evaluate into (:func:`with_experiment_name`)."""
+NOT_EVALUATIONS = ("training",)
+"""Question folders of conf/experiment/ that hold trainings (pipelines/train_runs.py), not evaluations."""
+
+
 def compose_config(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:
-    """Compose ``conf/<config_name>.yaml`` with ``overrides``; raise :class:`ConfigError` on any problem."""
+    """Compose ``conf/<config_name>.yaml`` with ``overrides``, named by its experiment
+    (:func:`with_experiment_name`); raise :class:`ConfigError` on any problem."""
+    refuse_old_spellings(overrides)
     register_schema()
     try:
         with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-            cfg = compose(config_name=config_name, overrides=list(overrides))
+            cfg = compose(config_name=config_name, overrides=list(overrides), return_hydra_config=True)
+        experiment = cfg.hydra.runtime.choices.get("experiment")
+        with open_dict(cfg):
+            del cfg["hydra"]
+        with_experiment_name(cfg, experiment)
     except (HydraException, OmegaConfBaseException) as error:
         raise ConfigError(describe_config_error(error)) from error
+    except AssertionError as error:  # OmegaConf: an override below a node that is null (controller.srmpc.x, not srmpc)
+        raise ConfigError(f"{' '.join(overrides)}: sets a key below a field that is null here (controller.srmpc.* "
+                          "needs controller=srmpc)") from error
     to_objects(cfg)  # validate values now, not halfway through a run
     return cfg
 

@@ -14,13 +14,8 @@ from enum import Enum
 from hydra.core.config_store import ConfigStore
 
 from srmpc.agents.hyperparameters import PPOHyperparameters
-from srmpc.controllers.srmpc import (
-    MAX_RELINEARIZATIONS,
-    OtherVehiclePrediction,
-    ReferenceSelection,
-    SrmpcSettings,
-    TrackingTarget,
-)
+from srmpc.controllers.nmpc import POLICY_GUESSES, NmpcInitialGuess
+from srmpc.controllers.srmpc import SrmpcSettings, variant_of
 from srmpc.mpc.problem import MAX_EGO_CIRCLES, MAX_HORIZON_STEPS, MAX_VEHICLE_SLOTS, OcpConfig
 from srmpc.mpc.solvers import DEFAULT_SOLVER
 from srmpc.scenario.observation import SLOT_COUNT
@@ -40,36 +35,57 @@ class Stage(Enum):
 
 
 class ControllerName(Enum):
-    """Controllers that evaluation can run."""
+    """Controllers that evaluation can run (``conf/controller/<name>.yaml``)."""
 
     lane_keeping = "lane_keeping"
     """IDM + lane-centre steering baseline (srmpc.controllers.lane_keeping)."""
+    policy = "policy"
+    """A trained agent's actor, its deterministic action (``controller.policy``: ppo_lsi, ppo, ppo_sb3, ...)."""
     ltv_mpc = "ltv_mpc"
     """LTV-MPC with the ``planner`` settings (srmpc.controllers.ltv_mpc)."""
-    ppo_lsi = "ppo_lsi"
-    """The trained PPO-L-SI actor's deterministic action (``evaluation.policy_path``)."""
-    ppo = "ppo"
-    """The trained PPO actor's deterministic action (``evaluation.policy_path``)."""
     srmpc = "srmpc"
-    """SRMPC: the LTV-MPC (``planner``) linearized about the ``srmpc.policy``'s rollout (srmpc.controllers.srmpc)."""
+    """SRMPC: the LTV-MPC (``planner``) linearized about ``controller.policy``'s rollout (``controller.srmpc``)."""
     nmpc = "nmpc"
     """NMPC: the ``planner``'s OCP on the exact model solved to convergence by SQP (srmpc.controllers.nmpc),
-    started from its shifted previous solution (constant velocity in the lane at first)."""
-    nmpc_constant_velocity = "nmpc_constant_velocity"
-    """NMPC started at every step from constant velocity in the closest lane (the paper's LTV-MPC start)."""
-    nmpc_rollout = "nmpc_rollout"
-    """NMPC started from the ``srmpc.policy``'s rollout (the paper's future work)."""
-    nmpc_best_of_two = "nmpc_best_of_two"
-    """NMPC from the rollout and from the shifted previous solution, the lower converged objective applied."""
+    started from ``controller.initial_guess``."""
 
 
-class PolicyName(Enum):
-    """A trained agent whose actor SRMPC rolls out."""
+@dataclass
+class ControllerConfig:
+    """The controller that drives the ego, with what it needs (``conf/controller/``): the policy it runs or rolls
+    out, SRMPC's settings, the NMPC's initial guess. The planner settings are ``planner``'s, shared by LTV-MPC,
+    SRMPC and the NMPC. The defaults are SRMPC's (the paper's); each option of conf/controller/ sets every field."""
 
-    ppo_lsi = "ppo_lsi"
-    """PPO-L-SI (the paper's safe policy)."""
-    ppo = "ppo"
-    """PPO (ablation: an unconstrained policy's reference)."""
+    name: ControllerName = ControllerName.srmpc
+    """Which controller."""
+    policy: str | None = "ppo_lsi"
+    """The trained agent whose deterministic actor the controller runs (``policy``) or rolls out (``srmpc``; the
+    ``nmpc`` from ``rollout`` or ``best_of_two``): ppo_lsi (the paper's), ppo, ppo_sb3, ppo_lsi_rss, ...; null for
+    the controllers that run none (lane_keeping, ltv_mpc)."""
+    policy_path: str | None = None
+    """Its policy.pt; null means results/training/<policy>/policy.pt."""
+    srmpc: SrmpcSettings | None = field(default_factory=SrmpcSettings)
+    """SRMPC's settings (srmpc.controllers.srmpc.SrmpcSettings; all defaults = the paper's Algorithm 1); set for
+    ``srmpc`` only."""
+    initial_guess: NmpcInitialGuess | None = None
+    """Where the NMPC's SQP starts each step: constant_velocity, shifted (the previous plan), rollout (the policy's),
+    best_of_two (srmpc.controllers.nmpc); set for ``nmpc`` only."""
+
+    def __post_init__(self) -> None:
+        check_fields(self, policy=TEXT, policy_path=TEXT)
+        name = self.name.value
+        runs_policy = self.name in (ControllerName.policy, ControllerName.srmpc) or (
+            self.name is ControllerName.nmpc and self.initial_guess in POLICY_GUESSES)
+        if runs_policy and self.policy is None:
+            raise ValueError(f"policy=null: controller {name} runs a policy; set controller.policy=<agent>")
+        if self.name in (ControllerName.lane_keeping, ControllerName.ltv_mpc) and (self.policy or self.policy_path):
+            raise ValueError(f"policy={self.policy}: controller {name} runs no policy; leave controller.policy null")
+        if (self.srmpc is None) == (self.name is ControllerName.srmpc):
+            raise ValueError(f"srmpc={'null' if self.srmpc is None else 'set'}: SRMPC's settings belong to "
+                             f"controller=srmpc only (this is controller={name})")
+        if (self.initial_guess is None) == (self.name is ControllerName.nmpc):
+            raise ValueError(f"initial_guess={getattr(self.initial_guess, 'value', 'null')}: the initial guess "
+                             f"belongs to controller=nmpc only (this is controller={name})")
 
 
 AgentConfig = PPOHyperparameters
@@ -140,52 +156,6 @@ class PlannerConfig:
             raise ValueError(f"solver={self.solver!r}: unknown QP solver; available: {', '.join(available_solvers())}")
 
 
-@dataclass
-class SrmpcConfig(SrmpcSettings):
-    """SRMPC: which policy proposes the linearization reference, and the variant (``conf/srmpc/``).
-
-    ``selection``, ``prediction`` and ``relinearizations`` are documented in
-    ``srmpc.controllers.srmpc.SrmpcSettings``; the planner settings are ``planner``'s, shared with LTV-MPC.
-    """
-
-    policy: PolicyName = PolicyName.ppo_lsi
-    """Whose deterministic actor is rolled out: ppo_lsi (the paper) or ppo."""
-    policy_path: str | None = None
-    """Its policy.pt; null means results/training/<policy>/policy.pt."""
-    variant: str = "paper"
-    """Name of the variant, used in run names and tables: what :func:`variant_of` makes of the settings
-    above (the file name in conf/srmpc/), checked against them at composition."""
-
-    def __post_init__(self) -> None:
-        check_fields(self, relinearizations=Interval(0, MAX_RELINEARIZATIONS), policy_path=TEXT, variant=TEXT)
-        super().__post_init__()
-        if self.variant != (made := variant_of(self)):
-            raise ValueError(f"variant={self.variant!r}: the settings (selection={self.selection.value}, "
-                             f"prediction={self.prediction.value}, relinearizations={self.relinearizations}, "
-                             f"tracking={self.tracking.value}) are variant {made!r}; set srmpc.variant={made}")
-
-
-SQP_RELINEARIZATIONS = 2
-"""The re-linearizations of the variant named ``sqp`` (conf/srmpc/sqp.yaml); another count is ``sqp_<count>``."""
-
-
-def variant_of(settings: SrmpcSettings) -> str:
-    """The variant name the settings make: ``paper`` when each is the paper's (Algorithm 1), else the name of each
-    that differs, in field order, joined by ``+``: ``best_of_two`` (selection), ``rollout_prediction``
-    (prediction), ``sqp`` (relinearizations), ``track_rollout`` (tracking). These are conf/srmpc/'s file names."""
-    names = []
-    if settings.selection is not ReferenceSelection.policy_first:
-        names.append(settings.selection.value)
-    if settings.prediction is not OtherVehiclePrediction.constant_velocity:
-        names.append("rollout_prediction")
-    if settings.relinearizations:
-        k = settings.relinearizations
-        names.append("sqp" if k == SQP_RELINEARIZATIONS else f"sqp_{k}")
-    if settings.tracking is not TrackingTarget.lane_centre:
-        names.append("track_rollout")
-    return "+".join(names) or "paper"
-
-
 class SimulatorName(Enum):
     """Which simulator evaluation runs on."""
 
@@ -202,8 +172,6 @@ class SimulatorName(Enum):
 class EvaluationConfig:
     """Closed-loop evaluation."""
 
-    controller: ControllerName = ControllerName.srmpc
-    """Which controller drives the ego."""
     simulator: SimulatorName = SimulatorName.twin
     """Where the episodes run. Episode i is reset with seed + i on either; the twin's draw for a seed
     differs from highway-env's (same distributions, own random streams)."""
@@ -211,17 +179,16 @@ class EvaluationConfig:
     """Number of episodes (paper: 1000 per traffic level)."""
     seed: int = 0
     """Episode i is reset with seed + i."""
-    policy_path: str | None = None
-    """policy.pt of the ppo / ppo_lsi controllers; null means results/training/<controller>/policy.pt."""
     output_dir: str | None = None
-    """Where episodes.csv and summary.json go; null means Hydra's run directory. Rerunning into a
+    """Where episodes.csv and summary.json go; null means results/evaluation/<experiment>_<traffic> for a run of
+    ``+experiment=<experiment>``, else Hydra's run directory. Rerunning into a
     directory that holds a partial run of the same config resumes it."""
     workers: int = 0
     """Processes that run the episodes (episode i still from seed + i, so the episodes do not depend on
     it): 0 means one per CPU core this process may use, 1 runs them in this process."""
 
     def __post_init__(self) -> None:
-        check_fields(self, episodes=at_least(1), seed=NON_NEGATIVE, policy_path=TEXT, output_dir=TEXT,
+        check_fields(self, episodes=at_least(1), seed=NON_NEGATIVE, output_dir=TEXT,
                      workers=NON_NEGATIVE)  # 0: one per core
 
 
@@ -247,12 +214,27 @@ class Config:
     """Root of the composed configuration."""
 
     stage: Stage = Stage.evaluate
+    experiment: str | None = None
+    """The run's identity: the ``+experiment=<path>`` it was started with (conf/experiment/<path>.yaml), filled in
+    by the entry point (srmpc.config.compose.with_experiment_name), never set by hand; null without one."""
     scenario: ScenarioParameters = field(default_factory=ScenarioParameters)
     agent: AgentConfig = field(default_factory=AgentConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
-    srmpc: SrmpcConfig = field(default_factory=SrmpcConfig)
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+
+
+def controller_label(controller: ControllerConfig) -> str:
+    """A short display name of a controller: ``ltv_mpc``, ``srmpc`` (its variant appended unless the paper's:
+    ``srmpc-track_rollout``), ``policy-ppo_sb3``, ``nmpc-rollout``. A run's identity is its experiment, not this."""
+    name = controller.name.value
+    if controller.srmpc is not None:
+        variant = variant_of(controller.srmpc)
+        return name if variant == "paper" else f"{name}-{variant}"
+    if controller.initial_guess is not None:
+        return f"{name}-{controller.initial_guess.value}"
+    return f"{name}-{controller.policy}" if controller.name is ControllerName.policy else name
 
 
 def register_schema() -> None:

@@ -5,10 +5,10 @@ Per step, from the measured ego state and the observed vehicles' constant-veloci
 1. the initial guess (``NmpcInitialGuess``):
    - ``constant_velocity``: constant velocity in the closest lane from the measured state at every step
      (``LtvMpcPlanner.lane_following_reference``, the paper's LTV-MPC start), no memory of the last plan;
-   - ``shifted_previous``: the last applied NMPC plan's inputs advanced by the steps since, rolled out on the
+   - ``shifted``: the last applied NMPC plan's inputs advanced by the steps since, rolled out on the
      exact model from the measured state; constant velocity in the closest lane when there is none
      (LTV-MPC's reference rule, ``LtvMpcPlanner.default_reference``);
-   - ``policy_rollout``: the policy's rollout in a copy of the scene (SRMPC's reference); ``shifted_previous``
+   - ``rollout``: the policy's rollout in a copy of the scene (SRMPC's reference); ``shifted``
      when the rollout raised or is non-finite;
    - ``best_of_two``: solve from both, apply the converged plan with the lower objective (AC4MPC's rule);
 2. the NMPC solve; a plan counts as solved only if the SQP converged (``NmpcResult.converged``);
@@ -40,12 +40,12 @@ class NmpcInitialGuess(enum.Enum):
     """Where the SQP starts (module doc)."""
 
     constant_velocity = "constant_velocity"
-    shifted_previous = "shifted_previous"
-    policy_rollout = "policy_rollout"
+    shifted = "shifted"
+    rollout = "rollout"
     best_of_two = "best_of_two"
 
 
-POLICY_GUESSES = (NmpcInitialGuess.policy_rollout, NmpcInitialGuess.best_of_two)
+POLICY_GUESSES = (NmpcInitialGuess.rollout, NmpcInitialGuess.best_of_two)
 """The guesses that roll out the policy."""
 
 
@@ -57,11 +57,11 @@ class NmpcController:
         planner: the LTV-MPC planner of the same OCP, for its prediction, references and fallback chain.
         tracking_reference: x^ref (N + 1, 4).
         initial_guess: see ``NmpcInitialGuess``.
-        policy, scene_source: the policy rolled out and the current scene (``policy_rollout``, ``best_of_two``).
+        policy, scene_source: the policy rolled out and the current scene (``rollout``, ``best_of_two``).
     """
 
     def __init__(self, solver: NmpcSolver, planner: LtvMpcPlanner, tracking_reference: np.ndarray,
-                 initial_guess: NmpcInitialGuess = NmpcInitialGuess.shifted_previous,
+                 initial_guess: NmpcInitialGuess = NmpcInitialGuess.shifted,
                  policy: MlpPolicy | Callable[[np.ndarray], np.ndarray] | None = None,
                  scene_source: SceneSource | None = None) -> None:
         if initial_guess in POLICY_GUESSES and (policy is None or scene_source is None):

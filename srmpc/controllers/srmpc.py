@@ -96,6 +96,28 @@ class SrmpcSettings:
             raise ValueError(f"relinearizations={self.relinearizations}: must be in [0, {MAX_RELINEARIZATIONS}]")
 
 
+SQP_RELINEARIZATIONS = 2
+"""The re-linearizations of the variant named ``sqp``; another count is ``sqp_<count>``."""
+
+
+def variant_of(settings: SrmpcSettings) -> str:
+    """The variant name the settings make: ``paper`` when each is the paper's (Algorithm 1), else the name of each
+    that differs, in field order, joined by ``+``: ``best_of_two`` (selection), ``rollout_prediction``
+    (prediction), ``sqp`` (relinearizations), ``track_rollout`` (tracking). A display name: a run's identity is
+    its experiment (srmpc.config.schema.Config.experiment)."""
+    names = []
+    if settings.selection is not ReferenceSelection.policy_first:
+        names.append(settings.selection.value)
+    if settings.prediction is not OtherVehiclePrediction.constant_velocity:
+        names.append("rollout_prediction")
+    if settings.relinearizations:
+        k = settings.relinearizations
+        names.append("sqp" if k == SQP_RELINEARIZATIONS else f"sqp_{k}")
+    if settings.tracking is not TrackingTarget.lane_centre:
+        names.append("track_rollout")
+    return "+".join(names) or "paper"
+
+
 @dataclass(frozen=True)
 class SrmpcStepTiming:
     """Wall time of one SRMPC step [us], split as the latency benchmark reports it."""

@@ -74,7 +74,7 @@ class RssParameters:
     ieeexplore.ieee.org/document/9304756 (response time 0.53 s). Its "conservative" set has rho 1.94 s,
     5.91 / 4.13 / 9.50 m/s^2, 0.45 / 0.86 m/s^2, mu 0.07 m; intel/ad-rss-lib's defaults are rho 1 s (ego)
     and 2 s (others), 3.5 / 4 / 8 m/s^2, 0.2 / 0.8 m/s^2, mu 0.1 m
-    (``conf/experiment/rss_sensitivity/ad_rss_lib.yaml``).
+    (``conf/experiment/training/rss_sensitivity/ad_rss_lib.yaml``).
     Why the aggressive set by default: at 25 m/s behind a leader at 25 m/s it asks for 54 m, the
     library's defaults for 89 m, twice dense traffic's mean same-lane gap (3 lanes x 15 m).
 

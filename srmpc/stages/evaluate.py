@@ -22,7 +22,7 @@ from pathlib import Path
 import yaml
 
 from srmpc.config.compose import ConfigError
-from srmpc.config.schema import Config
+from srmpc.config.schema import Config, controller_label
 from srmpc.controller_factory import make_env_and_controller, policy_file
 from srmpc.controllers.outcomes import OUTCOME_KEYS
 from srmpc.episode_loop import EpisodeRecord, evaluate, evaluate_in_workers
@@ -59,26 +59,20 @@ policy enters through its file's hash), MLflow settings, where the results go an
 produce them."""
 
 
-ADDED_WITH_DEFAULT = {("planner", "slack_price_scale"): 1.0}
-"""Keys added to the schema after results existed, with the default that reproduces those results: an older
-``config.yaml`` without the key and a newer one holding that default have the same episodes."""
-
-
 def evaluation_identity(config_yaml: str) -> dict:
-    """What an evaluation's episodes depend on: the config without :data:`NOT_IDENTITY` (nor the keys of
-    :data:`ADDED_WITH_DEFAULT` at their default), plus ``policy_sha256`` where the controller runs a policy."""
+    """What an evaluation's episodes depend on: the config without :data:`NOT_IDENTITY`, plus ``policy_sha256``
+    where the controller runs a policy."""
     try:
         identity = yaml.safe_load(config_yaml) or {}
     except yaml.YAMLError:
         identity = None
     if not isinstance(identity, dict):  # not a config mapping: the text itself is the identity
         return {"text": config_yaml}
-    for path in NOT_IDENTITY + tuple(ADDED_WITH_DEFAULT):
+    for path in NOT_IDENTITY:
         node = identity
         for key in path[:-1]:
             node = node.get(key, {}) if isinstance(node, dict) else {}
-        at_default = path not in ADDED_WITH_DEFAULT or node.get(path[-1]) == ADDED_WITH_DEFAULT[path]
-        if isinstance(node, dict) and at_default:
+        if isinstance(node, dict):
             node.pop(path[-1], None)
     return identity
 
@@ -134,7 +128,7 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
     if progress:
         from tqdm import tqdm
 
-        label = f"{config.evaluation.controller.value} {config.scenario.traffic}"
+        label = f"{config.experiment or controller_label(config.controller)} {config.scenario.traffic}"
         bar = tqdm(total=episodes, initial=len(finished), desc=label, unit="ep")
 
     def on_episode(record: EpisodeRecord) -> None:
@@ -161,9 +155,11 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
     reasons = [r.termination for r in records]
     summary["terminations"] = {reason: reasons.count(reason) for reason in ("collision", "offroad", "truncated")}
     summary["outcomes"] = {key: sum(r.outcomes.get(key, 0) for r in records) for key in OUTCOME_KEYS}
-    summary["controller"] = config.evaluation.controller.value
+    summary["controller"] = config.controller.name.value
     summary["traffic"] = config.scenario.traffic
     summary["simulator"] = config.evaluation.simulator.value
+    if config.experiment:
+        summary["experiment"] = config.experiment
     atomic_write_text(output_dir / SUMMARY_NAME, json.dumps(summary, indent=2) + "\n")
     run.log_metrics({k: v for k, v in summary.items() if isinstance(v, float | int)})
     run.log_artifact(output_dir / EPISODES_NAME)

@@ -25,7 +25,7 @@ def closed_loop(controller_name: str, traffic: str, compiled: bool, warm: bool, 
     |u0 - u0_clarabel| of every solved step's QP."""
     solver = "riccati_ipm" if warm else "riccati_ipm_cold"
     config = to_objects(compose_config([f"+experiment={traffic}_traffic", "tracking.enabled=false",
-                                        f"evaluation.controller={controller_name}", f"planner.solver={solver}"]))
+                                        f"controller={controller_name}", f"planner.solver={solver}"]))
     env = TwinScenarioEnv(config.scenario)
     controller = build_controller(config, env)
     assert controller.planner.solver.warm_start is warm
@@ -71,7 +71,7 @@ def test_warm_started_plans_agree_with_clarabel(controller_name):
 
 def test_the_default_paths_take_the_compiled_step():
     config = to_objects(compose_config(["+experiment=light_traffic", "tracking.enabled=false",
-                                        "evaluation.controller=srmpc"]))
+                                        "controller=srmpc"]))
     env = TwinScenarioEnv(config.scenario)
     controller = build_controller(config, env)
     assert controller.compiled_step() is not None
