@@ -42,7 +42,7 @@ EVALUATION = Path("results/evaluation")
 METHODS = {"ppo_lsi": "PPO-L-SI", "ltv_mpc": "LTV-MPC", "srmpc": "SRMPC", "ppo": "PPO",
            "ppo_sb3": "PPO (Stable-Baselines3)",
            "lane_keeping": "Lane keeping (baseline)",
-           "srmpc_recommended": "SRMPC, recommended (ours: srmpc=track_rollout planner=margin_1m)"}
+           "srmpc_recommended": "SRMPC, recommended (ours: tracking the rollout, a 1 m safety margin)"}
 EXPERIMENTS = {**{method: f"table/{method}" for method in METHODS},
                "srmpc_recommended": "confirmation/srmpc_recommended"}
 """The experiment each row of the table is (conf/experiment/<experiment>.yaml)."""

@@ -245,7 +245,7 @@ def verdicts(result: dict) -> list[str]:
     out = []
     for traffic in TRAFFIC:
         rows = result["evaluation"][traffic]
-        for method, (label, _, _) in METHODS.items():
+        for method, (label, _) in METHODS.items():
             v = rows[f"{method}/ppo_lsi_rss"]["verdicts"]
             out.append(f"{traffic}, {label}, PPO-L-RSS against PPO-L-SI: J_c {v['J_c']}, v_x {v['v_x']}.")
     for traffic in TRAFFIC:

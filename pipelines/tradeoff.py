@@ -82,8 +82,10 @@ def collect(resamples: int, seed: int) -> tuple[dict, dict]:
     points: dict = {t: {m: [] for m in (*CURVES, *SINGLE)} for t in TRAFFIC}
     episodes: dict[str, pd.DataFrame] = {}
     experiments = {**CURVE_EXPERIMENTS, **{m: [f"table/{m}"] for m in SINGLE}}
-    for traffic in TRAFFIC:
-        found = sorted((run_of(e, traffic), m) for m, names in experiments.items() for e in names)
+    for traffic in TRAFFIC:  # the table's runs are required, the sweep's points are those that exist
+        found = [(run_of(e, traffic) if e.startswith(("table/", "variants/")) else runs().get((e, traffic)), m)
+                 for m, names in experiments.items() for e in names]
+        found = sorted((directory, method) for directory, method in found if directory is not None)
         for directory, method in found:  # in folder order, as the sort below keeps ties
             p, e = point(directory, resamples, seed)
             if method in SINGLE:
@@ -180,6 +182,8 @@ def paper_operating_point(traffic: str, methods: dict, episodes: dict, resamples
     return result
 
 
+CONFIRMATION_EXPERIMENT = "confirmation/srmpc_recommended"
+"""The recommended setting's experiment on fresh seeds (conf/experiment/confirmation/srmpc_recommended.yaml)."""
 TARGET = {"light": {"min_vx": 24.1, "max_event_cost": 0.006}, "dense": {"min_vx": 22.3, "max_event_cost": 0.036}}
 """The issue's target: at least PPO-L-SI's speed (its table row), at no more than a tenth of its J_c."""
 STRETCH = {"light": {"min_vx": 24.63, "max_event_cost": 0.215}, "dense": {"min_vx": 24.47, "max_event_cost": 0.353}}
@@ -329,8 +333,9 @@ def markdown(report: dict) -> str:
         if c is not None:
             s, l_, policy = c["srmpc_recommended"], c["ltv_mpc_margin_1m"], c["ppo_lsi"]
             chosen = c["recommended"]
-            lines += ["", f"**The recommended setting, confirmed on fresh seeds** (`srmpc={chosen['variant']} "
-                      f"planner=margin_{chosen['settings']['safety_margin_longitudinal_m']:g}m`; "
+            lines += ["", "**The recommended setting, confirmed on fresh seeds** "
+                      f"(`+experiment={CONFIRMATION_EXPERIMENT}`: SRMPC variant {chosen['variant']}, a "
+                      f"{chosen['settings']['safety_margin_longitudinal_m']:g} m safety margin; "
                       f"{s['episodes']} episodes from seed {c['seed']}, never used by the sweep):", "",
                       "| method | J_c | v_x [m/s] | J_r |", "|---|---|---|---|",
                       f"| SRMPC, recommended | {ci(s, 'mean_event_cost', 3)} | {ci(s, 'mean_vx', 2)} | "

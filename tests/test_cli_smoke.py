@@ -69,7 +69,7 @@ def test_results_of_another_config_are_never_overwritten(tmp_path):
 
 
 def test_ltv_mpc_controller_runs_through_evaluation_and_counts_outcomes(tmp_path):
-    config = _config(1, **{"evaluation.controller": "ltv_mpc"})
+    config = _config(1, controller="ltv_mpc")
     summary = run_evaluation(config, "ltv\n", tmp_path / "eval", Run(None), progress=False)
     assert summary["controller"] == "ltv_mpc" and summary["mean_n_steps"] > 0
     outcomes = summary["outcomes"]

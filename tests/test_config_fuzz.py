@@ -186,7 +186,7 @@ def test_defaults_and_edge_values_the_runs_use_stay_valid():
     """Accepted, and kept as given: the composed config and its typed objects hold the override's value."""
     for override in ["agent.cost_gamma=0", "agent.multiplier_lr_final=null", "agent.multiplier_max_grad_norm=null",
                      "agent.seed=0", "evaluation.seed=0", "agent.entropy_coef=0", "agent.cost_threshold=0",
-                     "scenario.vehicles_behind_ego=0", "srmpc.relinearizations=0", "agent.gamma=1",
+                     "scenario.vehicles_behind_ego=0", "controller.srmpc.relinearizations=0", "agent.gamma=1",
                      "agent.multiplier_lr_final=1e-6", "agent.multiplier_max_grad_norm=3", "planner.max_vehicles=6",
                      "scenario.safety_index.edge_d_min_m=0", "scenario.reward.speed_weight=1"]:
         parsed = PARSER.parse_overrides([override])[0]

@@ -37,7 +37,7 @@ LABELS = {
     "ppo": "PPO",
     "ppo_sb3": "PPO (Stable-Baselines3, same settings)",
     "lane_keeping": "Lane keeping (baseline)",
-    "srmpc_recommended": "SRMPC, recommended (`srmpc=track_rollout planner=margin_1m`, fresh seeds)",
+    "srmpc_recommended": "SRMPC, recommended (tracking the rollout, 1 m margin, fresh seeds)",
 }
 """Row labels of the headline table by method key of ``results/table.json``; other keys show as themselves."""
 PAPER_ROWS = ("PPO-L-SI", "LTV-MPC", "SRMPC")

@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _config(controller, workers, episodes, seed=3):
     return to_objects(compose_config([
-        "+experiment=smoke", f"evaluation.controller={controller}", f"evaluation.episodes={episodes}",
+        "+experiment=smoke", f"controller={controller}", f"evaluation.episodes={episodes}",
         f"evaluation.workers={workers}", f"evaluation.seed={seed}", "tracking.enabled=false",
     ]))
 

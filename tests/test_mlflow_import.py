@@ -15,11 +15,12 @@ import pytest
 import yaml
 
 from pipelines.mlflow_import import IMPORT_TAG, import_results, results_of, stage_md5
+from pipelines.reporting import EXPERIMENTS
 from srmpc.tracking import ensure_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 
-EVALUATION, TRAINING = "results/evaluation/twin/lane_keeping_light", "results/training/ablation/ppo"
+EVALUATION, TRAINING = "results/evaluation/table/lane_keeping_light", "results/training/ablation/ppo"
 
 
 @pytest.fixture
@@ -31,7 +32,8 @@ def clone(tmp_path):
     stages = yaml.safe_load((ROOT / "dvc.lock").read_text())["stages"]
     training = copy.deepcopy(stages["train_multiplier_ablation"])
     training["outs"] = [out for out in training["outs"] if out["path"] == TRAINING]
-    lock = {"schema": "2.0", "stages": {"evaluate@lane_keeping-light": stages["evaluate@lane_keeping-light"],
+    cell = "evaluate@table/lane_keeping-light"
+    lock = {"schema": "2.0", "stages": {cell: stages[cell],
                                         "train_multiplier_ablation": training, "table": stages["table"]}}
     (root / "dvc.lock").write_text(yaml.safe_dump(lock))
     return root
@@ -62,13 +64,14 @@ def test_a_fresh_store_gets_every_result_once(clone, store):
 
     summary = json.loads((clone / EVALUATION / "summary.json").read_text())
     assert evaluation.info.status == "FINISHED" and evaluation.data.tags["mlflow.parentRunId"] == parent
-    assert {k: evaluation.data.tags[k] for k in ("stage", "method", "traffic", "seed", "variant", "current")} == {
-        "stage": "evaluate", "method": "lane_keeping", "traffic": "light", "seed": "0", "variant": "default",
-        "current": "true"}
+    assert {k: evaluation.data.tags[k] for k in ("stage", "experiment", "method", "traffic", "seed", "current")} == {
+        "stage": "evaluate", "experiment": "table/lane_keeping", "method": "lane_keeping", "traffic": "light",
+        "seed": "0", "current": "true"}
+    assert evaluation.info.run_name == "table/lane_keeping_light"
     for key in ("mean_event_cost", "cost_rate", "mean_return", "mean_n_steps", "mean_vx"):
         assert evaluation.data.metrics[key] == pytest.approx(summary[key])
     assert evaluation.data.metrics["terminations/truncated"] == summary["terminations"]["truncated"]
-    assert evaluation.data.params["evaluation.controller"] == "lane_keeping"
+    assert evaluation.data.params["controller.name"] == "lane_keeping"
     assert {a.path for a in client.list_artifacts(evaluation.info.run_id)} == {"config.yaml", "episodes.csv",
                                                                                 "summary.json"}
 
@@ -97,7 +100,7 @@ def test_a_rerun_stage_supersedes_its_runs_and_a_dead_import_is_redone(clone, st
     client.set_terminated(live, "FINISHED")
 
     lock = yaml.safe_load(lock_path.read_text())  # DVC reran the evaluation: its lock entry changed
-    entry = lock["stages"]["evaluate@lane_keeping-light"]
+    entry = lock["stages"]["evaluate@table/lane_keeping-light"]
     entry["outs"][0]["md5"] = "0" * 32
     lock_path.write_text(yaml.safe_dump(lock))
     dead = client.create_run(experiment_id, run_name="half an import",  # an import killed half-way
@@ -116,34 +119,28 @@ def test_a_rerun_stage_supersedes_its_runs_and_a_dead_import_is_redone(clone, st
     assert import_results(client, experiment_id, parent, lock_path, clone)["imported"] == 0
 
 
-@pytest.mark.parametrize("controller, variant, margin, weights, method, planner, tagged", [
-    ("srmpc", "track_rollout", 2.0, None, "srmpc_track_rollout", "margin_2m", "track_rollout+margin_2m"),
-    ("ltv_mpc", "paper", 4.0, None, "ltv_mpc", "margin_4m", "margin_4m"),
-    ("srmpc", "track_rollout", 1.0, None, "srmpc_recommended", "margin_1m", "track_rollout+margin_1m"),
-    ("srmpc", "track_rollout", 1.0, [0.0, 0.5, 20.0, 2.0], "srmpc_track_rollout", "margin_1m_speed_weight_2",
-     "track_rollout+margin_1m_speed_weight_2"),
-    ("srmpc", "paper", 8.0, None, "srmpc", "default", "paper"),
+@pytest.mark.parametrize("experiment, controller, policy, method", [
+    ("table/ppo_sb3", "policy", "ppo_sb3", "policy-ppo_sb3"),
+    ("tradeoff/ltv_mpc_margin_4m", "ltv_mpc", None, "ltv_mpc"),
+    ("confirmation/srmpc_recommended", "srmpc", "ppo_lsi", "srmpc"),
 ])
-def test_a_result_is_named_by_its_config_not_by_its_folder(controller, variant, margin, weights, method, planner,
-                                                            tagged):
-    """Method, planner setting and variant come from the composed config's values: the same config in any
-    folder, under any stage, gives the same run."""
+def test_a_result_is_named_by_its_config_not_by_its_folder(experiment, controller, policy, method):
+    """An evaluation's run is named by the experiment and traffic its config names, and tagged with them and its
+    controller: the same config in any folder, under any stage, gives the same run."""
     from pipelines.mlflow_import import result_tags, run_name_of
     from srmpc.tracking import run_tags
 
-    config = {"stage": "evaluate", "scenario": {"traffic": "light"},
-              "evaluation": {"controller": controller, "simulator": "twin", "seed": 0},
-              "srmpc": {"variant": variant}, "planner": {"safety_margin_longitudinal_m": margin}}
-    if weights:
-        config["planner"]["state_weights"] = weights
-    tags = result_tags(config, "evaluation")
-    assert (run_tags(config)["method"], tags["planner"], tags["margin_m"], tags["variant"]) == (
-        method, planner, str(margin), tagged)
-    assert run_name_of("evaluation", config).startswith(f"{method}-")
+    config = {"stage": "evaluate", "experiment": experiment, "scenario": {"traffic": "dense"},
+              "controller": {"name": controller, "policy": policy},
+              "evaluation": {"simulator": "twin", "seed": 0}, "planner": {"safety_margin_longitudinal_m": 4.0}}
+    tags = {**run_tags(config), **result_tags(config, "evaluation")}
+    assert tags == {"stage": "evaluate", "experiment": experiment, "method": method, "traffic": "dense", "seed": "0",
+                    "margin_m": "4.0", "simulator": "twin"}
+    assert run_name_of("evaluation", config) == f"{experiment}_dense"
 
 
 def test_every_row_of_the_results_table_has_its_run_under_the_tables_method(tmp_path, store):
-    """Each row of results/table.json: an imported run with that method and traffic tag and the row's J_c, and
+    """Each row of results/table.json: an imported run with that row's experiment and traffic tag and J_c, and
     exactly one run marked as the row (tag results_table, the runs table's "results" view), whose numbers are
     the row's. The runs are named by their config.yaml, so the check holds whatever the folders are called."""
     client, experiment_id, parent = store
@@ -160,7 +157,8 @@ def test_every_row_of_the_results_table_has_its_run_under_the_tables_method(tmp_
 
     runs = [run for runs in _runs(client, experiment_id).values() for run in runs]
     for (traffic, method), row in rows.items():
-        same = [r for r in runs if r.data.tags["method"] == method and r.data.tags["traffic"] == traffic]
+        same = [r for r in runs if r.data.tags.get("experiment") == EXPERIMENTS[method]
+                and r.data.tags["traffic"] == traffic]
         assert any(r.data.metrics["mean_event_cost"] == row["mean_event_cost"] for r in same), (
             f"{method} {traffic}: no run with the table's J_c {row['mean_event_cost']}: "
             f"{[(r.info.run_name, r.data.metrics.get('mean_event_cost')) for r in same]}")

@@ -27,28 +27,20 @@ def store(tmp_path, monkeypatch):
     mlflow.set_tracking_uri(None)
 
 
-def _params(controller="srmpc", traffic="light", seed=3, variant="paper", stage="evaluate"):
-    return {"stage": stage, "scenario": {"traffic": traffic}, "agent": {"name": "ppo_lsi", "seed": 1},
-            "evaluation": {"controller": controller, "seed": seed}, "srmpc": {"variant": variant}}
+def _params(controller="srmpc", traffic="light", seed=3, policy="ppo_lsi", stage="evaluate", experiment=None):
+    return {"stage": stage, "experiment": experiment, "scenario": {"traffic": traffic},
+            "agent": {"name": "ppo_lsi", "seed": 1}, "controller": {"name": controller, "policy": policy},
+            "evaluation": {"seed": seed}}
 
 
 def test_run_tags_name_method_traffic_and_seed():
     assert run_tags(_params()) == {"stage": "evaluate", "method": "srmpc", "traffic": "light", "seed": "3"}
-    assert run_tags(_params(variant="best_of_two"))["method"] == "srmpc_best_of_two"
-    assert run_tags(_params(controller="ltv_mpc", variant="best_of_two"))["method"] == "ltv_mpc"
-    sb3 = _params(controller="ppo")
-    sb3["evaluation"]["policy_path"] = "results/training/ppo_sb3/policy.pt"
-    assert run_tags(sb3)["method"] == "ppo_sb3"
-    sb3["evaluation"]["policy_path"] = "results/training/ppo_sb3/seed_2/policy.pt"
-    assert run_tags(sb3)["method"] == "ppo_sb3"
-    sb3["evaluation"]["policy_path"] = None
-    assert run_tags(sb3)["method"] == "ppo"
+    assert run_tags(_params(controller="policy", policy="ppo_sb3"))["method"] == "policy-ppo_sb3"
+    assert run_tags(_params(controller="ltv_mpc", policy=None))["method"] == "ltv_mpc"
     assert run_tags(_params(stage="train")) == {"stage": "train", "method": "ppo_lsi", "traffic": "light", "seed": "1"}
-    recommended = _params(variant="track_rollout")  # the results table's name for this setting
-    recommended["planner"] = {"safety_margin_longitudinal_m": 1.0}
-    assert run_tags(recommended)["method"] == "srmpc_recommended"
-    recommended["planner"]["safety_margin_longitudinal_m"] = 2.0
-    assert run_tags(recommended)["method"] == "srmpc_track_rollout"
+    named = run_tags(_params(experiment="confirmation/srmpc_recommended", seed=100000))
+    assert named == {"stage": "evaluate", "experiment": "confirmation/srmpc_recommended", "method": "srmpc",
+                     "traffic": "light", "seed": "100000"}
 
 
 def test_new_and_existing_experiments_open_on_the_runs_table(store):

@@ -35,7 +35,7 @@ def mlflow_ui(tmp_path, monkeypatch):
     uri, artifacts = f"sqlite:///{tmp_path / 'mlflow.db'}", str(tmp_path / "mlruns")
     for name, (controller, j_c) in RUNS.items():
         params = {"stage": "evaluate", "scenario": {"traffic": "light"},
-                  "evaluation": {"controller": controller, "seed": 0}, "srmpc": {"variant": "paper"}}
+                  "controller": {"name": controller}, "evaluation": {"seed": 0}}
         with tracked_run(True, uri, artifacts, "srmpc", name, params, "stage: evaluate\n") as run:
             run.log_metrics({J_C: j_c, "mean_vx": 21.5})
     import mlflow

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipelines import nmpc
+from pipelines import nmpc, reporting
 from pipelines.reporting import sign
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,34 +25,25 @@ def test_converged_share_counts_the_fallback_steps():
     assert nmpc.converged_share({"solved": 90, "shifted_previous": 8, "emergency_brake": 2}) == pytest.approx(0.9)
 
 
-def _copy_as(source: Path, target: Path, controller: str) -> None:
-    """A committed evaluation folder relabelled as another controller's (its episodes unchanged)."""
-    target.mkdir(parents=True)
-    for name in ("episodes.csv", "summary.json"):
-        shutil.copy(source / name, target / name)
-    config = yaml.safe_load((source / "config.yaml").read_text())
-    config["evaluation"]["controller"] = controller
-    (target / "config.yaml").write_text(yaml.safe_dump(config))
+def test_runs_are_found_by_the_experiment_their_config_names_not_by_their_folder(tmp_path):
+    """reporting.runs keys every evaluation by the experiment and traffic its config.yaml names: a copy under any
+    folder name is found; two folders of one experiment and traffic are an error."""
+    source = ROOT / "results/evaluation/nmpc/rollout_light"
+    for name in ("anything", "else"):
+        shutil.copytree(source, tmp_path / "q" / name)
+    with pytest.raises(SystemExit, match="both hold experiment nmpc/rollout in light traffic"):
+        reporting.runs(tmp_path)
+    shutil.rmtree(tmp_path / "q" / "else")
+    assert reporting.runs(tmp_path) == {("nmpc/rollout", "light"): tmp_path / "q" / "anything"}
 
 
-def test_folders_are_found_by_config_and_an_nmpc_copy_of_ltv_mpc_pairs_to_zero(tmp_path, monkeypatch):
-    twin = ROOT / "results/evaluation/twin"
-    roots = (tmp_path / "nmpc", tmp_path / "twin", tmp_path / "tradeoff")
-    for method in ("ltv_mpc", "srmpc"):
-        _copy_as(twin / f"{method}_light", roots[1] / f"{method}_light", method)
-    for controller in ("nmpc_constant_velocity", "nmpc", "nmpc_rollout", "nmpc_best_of_two"):
-        source = twin / ("ltv_mpc_light" if controller == "nmpc" else "srmpc_light")
-        _copy_as(source, roots[0] / f"{controller}_x_light", controller)
-    monkeypatch.setattr(nmpc, "ROOTS", roots)
-    found = nmpc.folders("ltv_mpc", "light")
-    assert set(found) == set(nmpc.METHODS) and found["nmpc"] == roots[0] / "nmpc_x_light"
-    with pytest.raises(SystemExit, match="no finished .* in dense traffic"):
-        nmpc.folders("ltv_mpc", "dense")
-    with pytest.raises(SystemExit, match="no finished ltv_mpc, srmpc, nmpc_constant_velocity"):
-        nmpc.folders("paper_operating_point", "light")  # other planner settings: none of these folders
-    _copy_as(twin / "ltv_mpc_light", roots[2] / "ltv_mpc_again_light", "ltv_mpc")
-    with pytest.raises(SystemExit, match="both hold ltv_mpc"):
-        nmpc.folders("ltv_mpc", "light")
+def test_each_nmpc_row_is_its_experiment():
+    found = nmpc.folders("paper_operating_point", "dense")
+    assert set(found) == set(nmpc.METHODS)
+    for method, directory in found.items():
+        config = yaml.safe_load((directory / "config.yaml").read_text())
+        assert (config["experiment"], config["scenario"]["traffic"]) == (
+            nmpc.EXPERIMENTS[method]["paper_operating_point"], "dense")
 
 
 @pytest.mark.skipif(not (ROOT / "results/nmpc.json").is_file(), reason="results/nmpc.json not generated")

@@ -3,13 +3,12 @@ the calibration script (pipelines/operating_point_calibration.py) on a 2-episode
 names probes in its figure, and the reproduction table (pipelines/operating_point.py) at both options."""
 
 import sys
-from pathlib import Path
 
 import pandas as pd
 import pytest
 import yaml
 
-from pipelines import operating_point
+from pipelines import operating_point, reporting
 from pipelines import operating_point_calibration as calibration
 from srmpc.config.compose import CONFIG_DIR, ConfigError, compose_config, to_objects
 from srmpc.controller_factory import planner_ocp
@@ -133,39 +132,36 @@ def test_reproduction_table_at_both_options(tmp_path, monkeypatch):
 
     from omegaconf import OmegaConf
 
-    twin, sweep, declared = tmp_path / "twin", tmp_path / "tradeoff", tmp_path / "declared"
-
     def at(option: str):
         planner = OmegaConf.to_container(compose_config([f"planner={option}"]).planner, resolve=True)
 
-        def write(directory: Path, *args, **kwargs) -> None:
-            write_evaluation(directory, *args, **kwargs)
+        def write(*args, **kwargs) -> None:
+            directory = write_evaluation(tmp_path, *args, **kwargs)
             config = yaml.safe_load((directory / "config.yaml").read_text())
             (directory / "config.yaml").write_text(yaml.safe_dump({**config, "planner": planner}))
         return write
 
     frozen, rule = at("paper_operating_point"), at("declared_rule_probe")
     for traffic in ("light", "dense"):  # SRMPC safer and faster than both, PPO-L-SI the most crashes
-        write_evaluation(twin / f"ppo_lsi_{traffic}", "ppo_lsi", traffic, 8, 23.0, 80)
-        write_evaluation(twin / f"ltv_mpc_{traffic}", "ltv_mpc", traffic, 8, 21.0, 8)  # the default planner's
-        frozen(sweep / f"a_{traffic}", "ltv_mpc", traffic, 1, 23.4, 120)  # names don't matter
-        frozen(sweep / f"b_{traffic}", "srmpc", traffic, 1, 24.0, 10)
-        frozen(sweep / f"c_{traffic}", "srmpc", traffic, 1, 24.7, 2, "track_rollout")
-        rule(declared / f"d_{traffic}", "ltv_mpc", traffic, 1, 23.5, 140)
-        rule(declared / f"e_{traffic}", "srmpc", traffic, 1, 24.1, 12)
-        rule(declared / f"f_{traffic}", "srmpc", traffic, 1, 24.6, 3, "track_rollout")
-    monkeypatch.setattr(operating_point, "TWIN", twin)
-    monkeypatch.setattr(operating_point, "TRADEOFF", sweep)
-    monkeypatch.setattr(operating_point, "DECLARED", declared)
+        write_evaluation(tmp_path, "table/ppo_lsi", "policy", traffic, 8, 23.0, 80)
+        write_evaluation(tmp_path, "table/ltv_mpc", "ltv_mpc", traffic, 8, 21.0, 8)  # the default planner's
+        frozen("operating_point/ltv_mpc", "ltv_mpc", traffic, 1, 23.4, 120)
+        frozen("operating_point/srmpc", "srmpc", traffic, 1, 24.0, 10)
+        frozen("operating_point/srmpc_track_rollout", "srmpc", traffic, 1, 24.7, 2, "policy_rollout")
+        rule("operating_point/ltv_mpc_declared_rule_probe", "ltv_mpc", traffic, 1, 23.5, 140)
+        rule("operating_point/srmpc_declared_rule_probe", "srmpc", traffic, 1, 24.1, 12)
+        rule("operating_point/srmpc_track_rollout_declared_rule_probe", "srmpc", traffic, 1, 24.6, 3,
+             "policy_rollout")
     monkeypatch.setattr(operating_point, "CALIBRATION", tmp_path / "none.csv")
     monkeypatch.chdir(tmp_path)
-    (tmp_path / "results").mkdir()
+    reporting.runs.cache_clear()
     monkeypatch.setattr(sys, "argv", ["operating_point.py", "--resamples", "200"])
     operating_point.main()
+    reporting.runs.cache_clear()
     result = json.loads((tmp_path / "results" / "operating_point.json").read_text())
     ltv = result["light"]["ltv_mpc"]
-    assert ltv["directory"].endswith("a_light") and result["declared_rule_probe"]["light"]["ltv_mpc"][
-        "directory"].endswith("d_light")
+    assert ltv["directory"].endswith("operating_point/ltv_mpc_light") and result["declared_rule_probe"]["light"][
+        "ltv_mpc"]["directory"].endswith("operating_point/ltv_mpc_declared_rule_probe_light")
     assert ltv["roles"]["mean_event_cost"].startswith("calibration target")
     assert ltv["roles"]["cost_rate"] == "follows from J_c and n_steps (rho_c = mean J_c / mean n_steps)"
     assert ltv["roles"]["mean_n_steps"] == "predicted (first out-of-sample check)"

@@ -13,7 +13,13 @@ import pytest
 from srmpc.config.compose import ConfigError, compose_config, to_objects
 from srmpc.controller_factory import build_controller
 from srmpc.controllers.ltv_mpc import LtvMpcController
-from srmpc.controllers.srmpc import OtherVehiclePrediction, ReferenceSelection, SrmpcController, SrmpcSettings
+from srmpc.controllers.srmpc import (
+    OtherVehiclePrediction,
+    ReferenceSelection,
+    SrmpcController,
+    SrmpcSettings,
+    variant_of,
+)
 from srmpc.episode_loop import run_episode
 from srmpc.mpc import OcpConfig
 from srmpc.mpc.planner import LtvMpcPlanner, ReferenceSource, StepOutcome
@@ -244,13 +250,14 @@ def test_same_seed_gives_the_same_episode():
 
 def test_default_controller_is_srmpc_with_the_paper_variant():
     config = _srmpc_config()
-    assert config.evaluation.controller.value == "srmpc" and config.srmpc.variant == "paper"
-    assert config.srmpc.relinearizations == 0 and config.srmpc.selection is ReferenceSelection.policy_first
+    assert config.controller.name.value == "srmpc" and variant_of(config.controller.srmpc) == "paper"
+    assert config.controller.srmpc.relinearizations == 0
+    assert config.controller.srmpc.selection is ReferenceSelection.policy_first
 
 
 def test_missing_policy_file_is_one_config_error(tmp_path):
     config = _srmpc_config(f"controller.policy_path={tmp_path / 'none.pt'}")
-    with pytest.raises(ConfigError, match="srmpc.policy_path"):
+    with pytest.raises(ConfigError, match="controller.policy_path=.*no such policy file"):
         build_controller(config, TwinScenarioEnv(config.scenario))
 
 

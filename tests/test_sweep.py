@@ -59,7 +59,7 @@ def test_evaluation_sweep_writes_each_controller_into_its_job_directory(tmp_path
                     f"hydra.sweep.dir={sweep}")
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
     for controller in ("lane_keeping", "ltv_mpc"):
-        (job,) = sweep.glob(f"*evaluation.controller={controller},*")
+        (job,) = sweep.glob(f"*controller={controller},*")
         summary = yaml.safe_load((job / "summary.json").read_text())
         assert summary["controller"] == controller and summary["episodes"] == 2
     assert not (tmp_path / "outputs").exists() and not (tmp_path / "multirun").exists()

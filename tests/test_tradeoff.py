@@ -12,14 +12,16 @@ import pandas as pd
 import pytest
 import yaml
 
-from pipelines import tradeoff
+from pipelines import reporting, tradeoff
 
 EPISODES = 200
 
 
-def write_evaluation(directory: Path, controller: str, traffic: str, margin: float, vx: float, crashes: int,
-                     variant: str = "paper", seed: int = 0) -> None:
-    """An evaluation directory as the CLI writes it: config.yaml, episodes.csv, summary.json."""
+def write_evaluation(root: Path, experiment: str, controller: str, traffic: str, margin: float, vx: float,
+                     crashes: int, tracking: str = "lane_centre", seed: int = 0) -> Path:
+    """An evaluation of ``experiment`` as the CLI writes it (config.yaml, episodes.csv, summary.json) into
+    ``root``/results/evaluation/<experiment>_<traffic>; returns the folder."""
+    directory = root / "results" / "evaluation" / f"{experiment}_{traffic}"
     directory.mkdir(parents=True)
     rng = np.random.default_rng(int(vx * 100) + crashes)
     event = np.zeros(EPISODES)
@@ -29,29 +31,35 @@ def write_evaluation(directory: Path, controller: str, traffic: str, margin: flo
                              "event_cost": event, "n_steps": np.where(event > 0, 200, 400),
                              "mean_vx": vx + rng.normal(0, 0.3, EPISODES), "termination": "truncated"})
     episodes.to_csv(directory / "episodes.csv", index=False)
-    config = {"scenario": {"traffic": traffic}, "evaluation": {"controller": controller, "seed": seed},
-              "srmpc": {"variant": variant},
-              "planner": {"safety_margin_longitudinal_m": margin, "state_weights": [0.0, 0.5, 20.0, 0.5]}}
+    srmpc = {"selection": "policy_first", "prediction": "constant_velocity", "relinearizations": 0,
+             "tracking": tracking} if controller == "srmpc" else None
+    config = {"experiment": experiment, "scenario": {"traffic": traffic}, "evaluation": {"seed": seed},
+              "controller": {"name": controller, "srmpc": srmpc},
+              "planner": {"safety_margin_longitudinal_m": margin, "state_weights": [0.0, 0.5, 20.0, 0.5],
+                          "slack_price_scale": 1.0}}
     (directory / "config.yaml").write_text(yaml.safe_dump(config))
     (directory / "summary.json").write_text(json.dumps({"episodes": EPISODES}))
+    return directory
 
 
 @pytest.fixture
 def project(tmp_path, monkeypatch):
     """Two margins per curve, light and dense: SRMPC faster and safer than LTV-MPC at 1 m, not at 8 m."""
-    twin, sweep = tmp_path / "twin", tmp_path / "tradeoff"
+    monkeypatch.chdir(tmp_path)
+    reporting.runs.cache_clear()
     for traffic in ("light", "dense"):
-        write_evaluation(twin / f"ltv_mpc_{traffic}", "ltv_mpc", traffic, 8, 21.0, 8)
-        write_evaluation(twin / f"srmpc_{traffic}", "srmpc", traffic, 8, 20.5, 1)
-        write_evaluation(twin / f"srmpc_track_rollout_{traffic}", "srmpc", traffic, 8, 21.5, 0, "track_rollout")
-        write_evaluation(sweep / f"ltv_mpc_m1_{traffic}", "ltv_mpc", traffic, 1, 22.0, 30)
-        write_evaluation(sweep / f"srmpc_m1_{traffic}", "srmpc", traffic, 1, 23.0, 2)
-        write_evaluation(sweep / f"srmpc_track_rollout_m1_{traffic}", "srmpc", traffic, 1, 24.0, 0, "track_rollout")
+        write_evaluation(tmp_path, "table/ltv_mpc", "ltv_mpc", traffic, 8, 21.0, 8)
+        write_evaluation(tmp_path, "table/srmpc", "srmpc", traffic, 8, 20.5, 1)
+        write_evaluation(tmp_path, "variants/track_rollout", "srmpc", traffic, 8, 21.5, 0, "policy_rollout")
+        write_evaluation(tmp_path, "tradeoff/ltv_mpc_margin_1m", "ltv_mpc", traffic, 1, 22.0, 30)
+        write_evaluation(tmp_path, "tradeoff/srmpc_margin_1m", "srmpc", traffic, 1, 23.0, 2)
+        write_evaluation(tmp_path, "tradeoff/srmpc_track_rollout_margin_1m", "srmpc", traffic, 1, 24.0, 0,
+                         "policy_rollout")
         for name, vx, crashes in (("ppo_lsi", 24.0, 40), ("ppo", 20.0, 5), ("lane_keeping", 19.0, 60)):
-            write_evaluation(twin / f"{name}_{traffic}", name, traffic, 8, vx, crashes)
-    monkeypatch.setattr(tradeoff, "TWIN", twin)
-    monkeypatch.setattr(tradeoff, "SWEEP", sweep)
-    return tmp_path
+            write_evaluation(tmp_path, f"table/{name}", "policy" if "ppo" in name else name, traffic, 8, vx,
+                             crashes)
+    yield tmp_path
+    reporting.runs.cache_clear()
 
 
 def test_points_are_sorted_by_speed_and_carry_their_settings(project):
@@ -99,15 +107,12 @@ def test_the_paper_operating_point_is_the_ltv_mpc_point_nearest_its_speed(projec
 
 
 def test_outputs_are_written_and_the_confirmation_is_judged_against_target_and_stretch(project, monkeypatch):
-    confirmation = project / "confirmation"
     for traffic in ("light", "dense"):
-        write_evaluation(confirmation / f"srmpc_recommended_{traffic}", "srmpc", traffic, 1, 24.2, 1,
-                         "track_rollout", seed=100000)
-        write_evaluation(confirmation / f"ltv_mpc_margin_1m_{traffic}", "ltv_mpc", traffic, 1, 22.0, 30,
+        write_evaluation(project, "confirmation/srmpc_recommended", "srmpc", traffic, 1, 24.2, 1, "policy_rollout",
                          seed=100000)
-        write_evaluation(confirmation / f"ppo_lsi_{traffic}", "ppo_lsi", traffic, 8, 24.0, 40, seed=100000)
-    monkeypatch.setattr(tradeoff, "CONFIRMATION", confirmation)
-    monkeypatch.chdir(project)
+        write_evaluation(project, "confirmation/ltv_mpc_margin_1m", "ltv_mpc", traffic, 1, 22.0, 30, seed=100000)
+        write_evaluation(project, "confirmation/ppo_lsi", "policy", traffic, 8, 24.0, 40, seed=100000)
+    reporting.runs.cache_clear()
     monkeypatch.setattr(sys, "argv", ["tradeoff.py", "--resamples", "200"])
     tradeoff.main()
     report = json.loads((project / "results" / "tradeoff.json").read_text())
@@ -122,18 +127,19 @@ def test_outputs_are_written_and_the_confirmation_is_judged_against_target_and_s
 
 
 def test_points_come_from_each_folders_config_not_its_name(project):
-    """Renamed folders give the same points; a second folder of one method at the default planner is an error."""
+    """Renamed folders give the same points; a second folder of one experiment and traffic is an error."""
     before, _ = tradeoff.collect(resamples=200, seed=0)
-    for i, directory in enumerate(sorted((project / "twin").iterdir())):
+    for i, directory in enumerate(sorted((project / "results/evaluation/table").iterdir())):
         directory.rename(directory.with_name(f"run_{i}"))
+    reporting.runs.cache_clear()
     after, _ = tradeoff.collect(resamples=200, seed=0)
     assert {(t, m): [p["mean_vx"] for p in c] for t, ms in after.items() for m, c in ms.items()} == {
         (t, m): [p["mean_vx"] for p in c] for t, ms in before.items() for m, c in ms.items()}
-    from pipelines.reporting import by_method
-
-    write_evaluation(project / "twin" / "another_srmpc_light", "srmpc", "light", 8, 20.0, 0)
-    with pytest.raises(SystemExit, match="both hold srmpc in light traffic"):
-        by_method(project / "twin")
+    write_evaluation(project / "elsewhere", "table/srmpc", "srmpc", "light", 8, 20.0, 0).rename(
+        project / "results/evaluation/table/another_srmpc_light")
+    reporting.runs.cache_clear()
+    with pytest.raises(SystemExit, match="both hold experiment table/srmpc in light traffic"):
+        tradeoff.collect(resamples=200, seed=0)
 
 
 def _candidate(method: str, margin: float, dvx: float, shown: bool) -> dict:

@@ -27,7 +27,7 @@ class Stage(Enum):
     """What ``python -m srmpc`` does."""
 
     evaluate = "evaluate"
-    """Run closed-loop evaluation episodes of ``evaluation.controller``."""
+    """Run closed-loop evaluation episodes of ``controller``."""
     train = "train"
     """Train ``agent`` (PPO or PPO-L-SI) on the batched simulator; resumes from its checkpoint."""
     train_sb3 = "train_sb3"
@@ -223,6 +223,9 @@ class Config:
     controller: ControllerConfig = field(default_factory=ControllerConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+
+    def __post_init__(self) -> None:
+        check_fields(self, experiment=TEXT)
 
 
 def controller_label(controller: ControllerConfig) -> str:

@@ -44,6 +44,7 @@ from srmpc.sim.constants import SimConstants
 from srmpc.sim.mlp import MlpPolicy
 from srmpc.sim.rollout import Rollout, rollout
 from srmpc.sim.state import SceneState
+from srmpc.value_checks import Interval, check_fields
 
 
 class ReferenceSelection(enum.Enum):
@@ -92,8 +93,7 @@ class SrmpcSettings:
     """lane_centre (the paper's x^ref) or policy_rollout (x^ref = the policy's rollout)."""
 
     def __post_init__(self) -> None:
-        if not 0 <= self.relinearizations <= MAX_RELINEARIZATIONS:
-            raise ValueError(f"relinearizations={self.relinearizations}: must be in [0, {MAX_RELINEARIZATIONS}]")
+        check_fields(self, relinearizations=Interval(0, MAX_RELINEARIZATIONS))
 
 
 SQP_RELINEARIZATIONS = 2

@@ -21,11 +21,12 @@ STAMP_NAME = "numba_sources.sha256"
 
 
 def sources_digest() -> str:
-    """SHA-256 over the names and contents of every ``.py`` file in :data:`KERNEL_SOURCE_DIRS`."""
+    """SHA-256 over the paths and contents of every ``.py`` file in :data:`KERNEL_SOURCE_DIRS` and their
+    subpackages (``srmpc/mpc/problem``, ``solvers``, ``nmpc``)."""
     digest = hashlib.sha256()
     for directory in KERNEL_SOURCE_DIRS:
-        for path in sorted(directory.glob("*.py")):
-            digest.update(path.name.encode())
+        for path in sorted(directory.rglob("*.py")):
+            digest.update(path.relative_to(_PACKAGE_ROOT).as_posix().encode())
             digest.update(path.read_bytes())
     return digest.hexdigest()
 
@@ -41,7 +42,7 @@ def drop_stale_numba_cache() -> bool:
         pass
     for directory in KERNEL_SOURCE_DIRS:
         for pattern in ("*.nbi", "*.nbc"):
-            for cached in (directory / "__pycache__").glob(pattern):
+            for cached in directory.rglob(f"__pycache__/{pattern}"):
                 cached.unlink(missing_ok=True)
     try:
         stamp.parent.mkdir(exist_ok=True)
