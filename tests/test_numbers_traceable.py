@@ -550,7 +550,7 @@ TRACED: tuple[Traced, ...] = (
             "dense.srmpc.twin.mean_event_cost", "dense.srmpc.highway_env_resets.mean_event_cost",
             "light.ltv_mpc.twin.mean_event_cost", "light.ltv_mpc.highway_env_resets.mean_event_cost"),
            ("1000 episodes",)),
-    Traced(RESULTS_DOC, "also runs 20 LTV-MPC and SRMPC episodes", definitions=("20 LTV-MPC",)),
+    Traced(RESULTS_DOC, "also run 20 LTV-MPC and SRMPC episodes", definitions=("20 LTV-MPC",)),
     Traced(RESULTS_DOC, "overtakes a slower leader within", definitions=("30 s",)),
     Traced(RESULTS_DOC, "frames per second", definitions=("15 frames",)),
 )

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from srmpc.controllers.outcomes import OUTCOME_KEYS, REFERENCE_OUTCOMES
+from srmpc.controllers.outcomes import REFERENCE_OUTCOMES, episode_counts
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, StepOutcome
 from srmpc.mpc.problem import OcpConfig, lane_keeping_tracking_reference
 
@@ -81,7 +81,7 @@ class LtvMpcController:
     def episode_outcomes(self) -> dict[str, int]:
         """Steps per outcome key (``srmpc.controllers.outcomes``): the fallback chain's links, and of the
         solved steps, how many per linearization reference."""
-        return {key: int(self.outcome_counts.get(key, 0)) for key in OUTCOME_KEYS}
+        return episode_counts(self.outcome_counts)
 
     def act(self, observation: np.ndarray, scene) -> np.ndarray:
         """The scenario controller's step: the ego and the observed vehicles (the 6 observation slots)."""

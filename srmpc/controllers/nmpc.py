@@ -28,7 +28,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from srmpc.controllers.outcomes import OUTCOME_KEYS, POLICY_FAILED, REFERENCE_OUTCOMES
+from srmpc.controllers.outcomes import POLICY_FAILED, REFERENCE_OUTCOMES, episode_counts
 from srmpc.controllers.srmpc import SceneSource
 from srmpc.mpc.nmpc import NmpcResult, NmpcSolver
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, ReferenceSource, StepOutcome
@@ -79,7 +79,7 @@ class NmpcController:
         self.outcomes: Counter[str] = Counter()
 
     def episode_outcomes(self) -> dict[str, int]:
-        return {key: int(self.outcomes.get(key, 0)) for key in OUTCOME_KEYS}
+        return episode_counts(self.outcomes)
 
     def _rollout_guess(self) -> tuple[np.ndarray, np.ndarray] | None:
         try:

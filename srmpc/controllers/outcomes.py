@@ -6,6 +6,8 @@ linearization reference the applied QP solution came from (they add up to ``solv
 ``policy_failed``: steps whose policy rollout raised or was non-finite (SRMPC only).
 """
 
+from collections import Counter
+
 from srmpc.mpc.planner import ReferenceSource, StepOutcome
 
 REFERENCE_OUTCOMES = {
@@ -17,3 +19,8 @@ REFERENCE_OUTCOMES = {
 POLICY_FAILED = "policy_failed"
 OUTCOME_KEYS = (*(outcome.value for outcome in StepOutcome), *REFERENCE_OUTCOMES.values(), POLICY_FAILED)
 """Every outcome key, in the column order of ``episodes.csv``."""
+
+
+def episode_counts(counts: Counter[str]) -> dict[str, int]:
+    """Steps per outcome key of an episode, every key of :data:`OUTCOME_KEYS` present (0 when none)."""
+    return {key: int(counts.get(key, 0)) for key in OUTCOME_KEYS}

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from srmpc.controllers.outcomes import OUTCOME_KEYS, POLICY_FAILED, REFERENCE_OUTCOMES
+from srmpc.controllers.outcomes import POLICY_FAILED, REFERENCE_OUTCOMES, episode_counts
 from srmpc.mpc.compiled_step import STEP_REJECTED, STEP_ROLLOUT_FAILED, CompiledPlannerStep, status_name
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, ReferenceSource
 from srmpc.mpc.problem import nonlinear_plan_cost
@@ -173,7 +173,7 @@ class SrmpcController:
         self.outcomes: Counter[str] = Counter()
 
     def episode_outcomes(self) -> dict[str, int]:
-        return {key: int(self.outcomes.get(key, 0)) for key in OUTCOME_KEYS}
+        return episode_counts(self.outcomes)
 
     def act(self, observation: np.ndarray, scene) -> np.ndarray:
         """One step of Algorithm 1 (module doc); returns u_k = (delta [rad], a [m/s^2])."""
