@@ -38,6 +38,8 @@ from srmpc.mpc.solvers import DEFAULT_SOLVER, QpSolution, QpSolver, RiccatiInter
 
 LANE_HOLD_LATERAL_GAIN_1_S = 0.6
 """Emergency lane hold: heading command per lateral error and speed, psi_cmd = -k e / v [1/s]."""
+LANE_HOLD_MAX_HEADING_RAD = 0.3
+"""Emergency lane hold: the heading command's bound, |psi_cmd| <= this [rad]."""
 LANE_HOLD_HEADING_GAIN = 1.0
 """Emergency lane hold: steering per heading error [rad/rad]."""
 INPUT_BOUND_TOLERANCE = 1e-4
@@ -129,9 +131,9 @@ class LtvMpcPlanner:
         self.lane_centres_m = tuple(lane_centres_m)
         horizon = self.config.horizon
         self.input_lower = np.array([self.config.steering_bounds_rad[0],
-                                     self.config.acceleration_bounds_m_s2[0]])
+                                     self.config.acceleration_bounds_mps2[0]])
         self.input_upper = np.array([self.config.steering_bounds_rad[1],
-                                     self.config.acceleration_bounds_m_s2[1]])
+                                     self.config.acceleration_bounds_mps2[1]])
         self._default_tracking = lane_keeping_tracking_reference(horizon)
         self._no_inputs = np.zeros((horizon, INPUT_DIM))
         self._compiled: CompiledPlannerStep | None = None
@@ -173,7 +175,7 @@ class LtvMpcPlanner:
     def emergency_brake(self, ego_state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Full braking while steering back to the closest lane centre.
 
-        Steering law per stage: delta = clip(-k_psi (psi - psi_cmd)), psi_cmd = -k_y e / max(v, 1)
+        Steering law per stage: delta = clip(-k_psi (psi - psi_cmd)), psi_cmd = clip(-k_y e / max(v, 1), +-psi_max)
         with e = y - y_lane; acceleration = the lower acceleration bound, but not below what
         stops exactly at v = 0 within one step.
         """
@@ -185,7 +187,7 @@ class LtvMpcPlanner:
         for k in range(horizon):
             px, py, psi, speed = states[k]
             heading_command = -LANE_HOLD_LATERAL_GAIN_1_S * (py - lane) / max(speed, 1.0)
-            heading_command = float(np.clip(heading_command, -0.3, 0.3))
+            heading_command = float(np.clip(heading_command, -LANE_HOLD_MAX_HEADING_RAD, LANE_HOLD_MAX_HEADING_RAD))
             steering = -LANE_HOLD_HEADING_GAIN * (psi - heading_command)
             braking = max(self.input_lower[1], -max(speed, 0.0) / dt)
             inputs[k] = np.clip([steering, braking], self.input_lower, self.input_upper)

@@ -80,7 +80,7 @@ def test_constraints_hold_at_solution(loaded_qp, six_vehicles, name):
     states, inputs, collision_slacks, _ = qp.split_solution(solution.z)
     config = qp.config
     assert np.all(inputs[:, 0] <= config.steering_bounds_rad[1] + tolerance)
-    assert np.all(np.abs(inputs[:, 1]) <= config.acceleration_bounds_m_s2[1] + tolerance)
+    assert np.all(np.abs(inputs[:, 1]) <= config.acceleration_bounds_mps2[1] + tolerance)
     assert np.all(states[1:, 1] >= config.lateral_bounds_m[0] - tolerance)
     assert np.all(states[1:, 1] <= config.lateral_bounds_m[1] + tolerance)
     # with no slack used, the linearized half-planes imply the true ellipse constraint for the

@@ -31,7 +31,7 @@ def random_qp(rng: np.random.Generator, n_others: int) -> LtvMpcQp:
                               rng.choice([0.0, 4.0, 8.0], n_others) + rng.normal(0, 0.3, n_others),
                               rng.normal(0, 0.02, n_others), rng.uniform(15, 30, n_others)])
     qp.update(ego, states, inputs,
-              lane_keeping_tracking_reference(horizon, speed_m_s=rng.uniform(20, 30)),
+              lane_keeping_tracking_reference(horizon, speed_mps=rng.uniform(20, 30)),
               rng.uniform([-0.1, -5], [0.1, 5]),
               predict_constant_velocity(others, horizon, config.control_period_s))
     return qp

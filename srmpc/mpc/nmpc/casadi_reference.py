@@ -71,10 +71,10 @@ def _discrete_bicycle(config: OcpConfig):
     for _ in range(bicycle.n_substeps):
         v = state[3]
         beta = ca.atan(0.5 * ca.tan(u[0]))
-        accel = ca.if_else(ca.logic_and(v > bicycle.max_speed_m_s, u[1] > bicycle.max_speed_m_s - v),
-                           bicycle.max_speed_m_s - v,
-                           ca.if_else(ca.logic_and(v < bicycle.min_speed_m_s, u[1] < bicycle.min_speed_m_s - v),
-                                      bicycle.min_speed_m_s - v, u[1]))
+        accel = ca.if_else(ca.logic_and(v > bicycle.max_speed_mps, u[1] > bicycle.max_speed_mps - v),
+                           bicycle.max_speed_mps - v,
+                           ca.if_else(ca.logic_and(v < bicycle.min_speed_mps, u[1] < bicycle.min_speed_mps - v),
+                                      bicycle.min_speed_mps - v, u[1]))
         state = ca.vertcat(state[0] + h * v * ca.cos(state[2] + beta), state[1] + h * v * ca.sin(state[2] + beta),
                            state[2] + h * v * ca.sin(beta) / half_length, v + h * accel)
     return ca.Function("f", [x, u], [state])
@@ -133,11 +133,11 @@ class IpoptOcp:
         state_lower = np.full((4, horizon + 1), -np.inf)
         state_upper = np.full((4, horizon + 1), np.inf)
         state_lower[1, 1:], state_upper[1, 1:] = config.lateral_bounds_m
-        state_lower[3, 1:], state_upper[3, 1:] = config.speed_bounds_m_s
+        state_lower[3, 1:], state_upper[3, 1:] = config.speed_bounds_mps
         n_states = 4 * (horizon + 1)
         lower[:n_states], upper[:n_states] = state_lower.ravel(order="F"), state_upper.ravel(order="F")
-        input_lower = np.tile([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]], horizon)
-        input_upper = np.tile([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]], horizon)
+        input_lower = np.tile([config.steering_bounds_rad[0], config.acceleration_bounds_mps2[0]], horizon)
+        input_upper = np.tile([config.steering_bounds_rad[1], config.acceleration_bounds_mps2[1]], horizon)
         lower[n_states:n_states + 2 * horizon], upper[n_states:n_states + 2 * horizon] = input_lower, input_upper
         lower[n_states + 2 * horizon:] = 0.0
         self._lbx, self._ubx = lower, upper

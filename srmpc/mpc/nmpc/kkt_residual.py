@@ -155,9 +155,9 @@ def kkt_residuals(w, n_obs, last_input, tracking_reference, frames, constants, w
     collision_norm, safety_norm = np.empty((horizon, n_obs)), np.empty((horizon, n_obs))
     row_lower = np.empty((horizon, n_obs))
     if n_obs:
-        linearize_ellipse_rows(states, frames, n_obs, constants.circle_offsets, constants.collision_semi_axes,
+        linearize_ellipse_rows(states, frames, n_obs, constants.circle_offsets_m, constants.collision_semi_axes_m,
                                collision_gradient, row_lower, collision_norm)
-        linearize_ellipse_rows(states, frames, n_obs, constants.circle_offsets, constants.safety_semi_axes,
+        linearize_ellipse_rows(states, frames, n_obs, constants.circle_offsets_m, constants.safety_semi_axes_m,
                                safety_gradient, row_lower, safety_norm)
     o_ylo, o_yhi, o_vlo, o_vhi, o_ulo, o_uhi = offsets[4], offsets[5], offsets[6], offsets[7], offsets[8], offsets[9]
     lower, upper = constants.state_lower, constants.state_upper

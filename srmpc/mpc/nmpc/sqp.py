@@ -395,10 +395,10 @@ class NmpcSolver:
             np.asarray(weights.input, dtype=np.float64), np.asarray(weights.input_rate, dtype=np.float64),
             np.array([weights.collision_slack_linear, weights.collision_slack_quadratic, weights.safety_slack_linear,
                       weights.safety_slack_quadratic], dtype=np.float64),
-            np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_m_s[0]]),
-            np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_m_s[1]]),
-            np.array([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]]),
-            np.array([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]]),
+            np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_mps[0]]),
+            np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_mps[1]]),
+            np.array([config.steering_bounds_rad[0], config.acceleration_bounds_mps2[0]]),
+            np.array([config.steering_bounds_rad[1], config.acceleration_bounds_mps2[1]]),
             float(settings.screening_norm))
         qp = self.qp
         self._subproblem = Subproblem(

@@ -189,12 +189,12 @@ def _box_bounds(config: OcpConfig, layout: VariableLayout) -> tuple[np.ndarray, 
     variable_upper = np.full(n, np.inf)
     variable_lower[state_idx[1:, LATERAL_INDEX]] = config.lateral_bounds_m[0]
     variable_upper[state_idx[1:, LATERAL_INDEX]] = config.lateral_bounds_m[1]
-    variable_lower[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_m_s[0]
-    variable_upper[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_m_s[1]
+    variable_lower[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_mps[0]
+    variable_upper[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_mps[1]
     variable_lower[input_idx[:, 0]] = config.steering_bounds_rad[0]
     variable_upper[input_idx[:, 0]] = config.steering_bounds_rad[1]
-    variable_lower[input_idx[:, 1]] = config.acceleration_bounds_m_s2[0]
-    variable_upper[input_idx[:, 1]] = config.acceleration_bounds_m_s2[1]
+    variable_lower[input_idx[:, 1]] = config.acceleration_bounds_mps2[0]
+    variable_upper[input_idx[:, 1]] = config.acceleration_bounds_mps2[1]
     variable_lower[layout.collision_slack_indices()] = 0.0
     variable_lower[safe_slack_idx] = 0.0
     variable_upper[safe_slack_idx] = 0.0  # set per step to h'(n) - 1
@@ -340,9 +340,9 @@ class LtvMpcQp:
         self.config = config
         self.model = model or KinematicBicycle(config.bicycle)
         geometry = config.geometry
-        self.circle_offsets = np.asarray(geometry.circle_offsets_m, dtype=np.float64)
-        self.collision_semi_axes = np.asarray(geometry.collision_semi_axes_m)
-        self.safety_semi_axes = np.asarray(geometry.safety_semi_axes_m)
+        self.circle_offsets_m = np.asarray(geometry.circle_offsets_m, dtype=np.float64)
+        self.collision_semi_axes_m = np.asarray(geometry.collision_semi_axes_m)
+        self.safety_semi_axes_m = np.asarray(geometry.safety_semi_axes_m)
         layout = VariableLayout.build(config.horizon, config.max_vehicles)
         self.layout = layout
         self._state_idx = layout.state_indices()
@@ -426,7 +426,7 @@ class LtvMpcQp:
             predicted_others = self._empty_prediction
         linearize_collision_constraints(
             lin_states, np.ascontiguousarray(predicted_others, dtype=np.float64), n_observed,
-            self.circle_offsets, self.collision_semi_axes, self.safety_semi_axes,
+            self.circle_offsets_m, self.collision_semi_axes_m, self.safety_semi_axes_m,
             self.collision_coefficients, self.collision_row_lower, self.safety_slack_upper,
             self.critical_circle)
         self.n_observed = n_observed
