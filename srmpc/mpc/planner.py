@@ -30,6 +30,7 @@ from srmpc.mpc.problem import (
     STATE_DIM,
     LtvMpcQp,
     OcpConfig,
+    OcpStepData,
     TrafficPredictor,
     lane_keeping_tracking_reference,
     predict_constant_velocity,
@@ -299,21 +300,20 @@ class LtvMpcPlanner:
     ) -> tuple[Plan | None, str]:
         """Linearize about (x^r, u^r), update the QP, solve: the plan, or None and the solver status.
 
+        The arguments become the step's ``OcpStepData`` (x^r_0 replaced by the measured state), shapes checked.
         Does not touch the fallback state (call :meth:`accept` with the plan that is applied).
         ``plan.solve_time_s`` is the solver's time, ``plan.step_time_s`` this call's.
         """
         start = time.perf_counter()
-        horizon = self.config.horizon
         ego_state = np.asarray(ego_state, dtype=np.float64).reshape(STATE_DIM)
-        last_input = np.asarray(last_input, dtype=np.float64).reshape(INPUT_DIM)
-        tracking_reference = self._checked_tracking(tracking_reference)
         ref_states = np.array(ref_states, dtype=np.float64)
-        ref_inputs = np.asarray(ref_inputs, dtype=np.float64)
-        if ref_states.shape != (horizon + 1, STATE_DIM) or ref_inputs.shape != (horizon, INPUT_DIM):
-            raise ValueError("the linearization reference must be ((N + 1, 4), (N, 2)) arrays")
+        if ref_states.shape != (self.config.horizon + 1, STATE_DIM):
+            raise ValueError(f"the linearization states must have shape {(self.config.horizon + 1, STATE_DIM)}, "
+                             f"not {ref_states.shape}")
         ref_states[0] = ego_state
-        solution = self._solve(ego_state, ref_states, ref_inputs, tracking_reference, last_input,
-                               predicted_others)
+        step = OcpStepData(ego_state, ref_states, ref_inputs, self._checked_tracking(tracking_reference),
+                           np.asarray(last_input, dtype=np.float64).reshape(INPUT_DIM), predicted_others)
+        solution = self._solve(step)
         plan = self._plan_from_solution(solution, source)
         if plan is not None:
             plan.solve_time_s = solution.solve_time_s
@@ -325,11 +325,10 @@ class LtvMpcPlanner:
         self.last_solved_plan = plan
         self.steps_since_solved = 0
 
-    def _solve(self, ego_state, ref_states, ref_inputs, tracking_reference, last_input,
-               predicted) -> QpSolution:
-        self.qp.update(ego_state, ref_states, ref_inputs, tracking_reference, last_input,
-                       predicted)
-        warm_start = (self.qp.pack(ref_states, ref_inputs)
+    def _solve(self, step: OcpStepData) -> QpSolution:
+        """``qp.update(step)``, then the solve, warm-started at (x^r, u^r) if the solver accepts it."""
+        self.qp.update(step)
+        warm_start = (self.qp.pack(step.linearization_states, step.linearization_inputs)
                       if getattr(self.solver, "accepts_warm_start", True) else None)
         solve_start = time.perf_counter()
         solution = self.solver.solve(self.qp, warm_start)
