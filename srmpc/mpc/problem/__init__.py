@@ -8,7 +8,7 @@ rows (``collision_constraints``) -> the QP's values in a fixed sparsity pattern,
 ``nonlinear_cost`` evaluates a plan on the exact (not linearized) problem. Nothing here imports the other rooms.
 """
 
-from srmpc.mpc.problem.collision_constraints import collision_norms, linearize_collision_constraints
+from srmpc.mpc.problem.collision_constraints import closest_circle, collision_norms, linearize_collision_constraints
 from srmpc.mpc.problem.nonlinear_cost import nonlinear_plan_cost
 from srmpc.mpc.problem.ocp import (
     LANE_CENTRES_M,
@@ -51,6 +51,7 @@ __all__ = [
     "OcpStepData",
     "TrackingWeights",
     "TrafficPredictor",
+    "closest_circle",
     "collision_norms",
     "constant_velocity_rollout",
     "lane_keeping_tracking_reference",
