@@ -27,7 +27,7 @@ def ocp_config(
         horizon=horizon_steps,
         max_vehicles=max_vehicles,
         steering_bounds_rad=(-scenario.steering_max_rad, scenario.steering_max_rad),
-        acceleration_bounds_m_s2=(scenario.acceleration_min_mps2, scenario.acceleration_max_mps2),
+        acceleration_bounds_mps2=(scenario.acceleration_min_mps2, scenario.acceleration_max_mps2),
         lateral_bounds_m=(
             road.LEFT_ROAD_EDGE + road.VEHICLE_WIDTH / 2.0,
             road.RIGHT_ROAD_EDGE - road.VEHICLE_WIDTH / 2.0,

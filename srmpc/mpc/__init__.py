@@ -7,15 +7,15 @@ a room is entered through its ``__init__``, which exports what the others use:
   prediction, the linearized collision rows and the QP in a fixed sparsity pattern (``qp_builder.LtvMpcQp``);
 - ``solvers``: how a QP is solved -- our Riccati interior point and the library solvers behind one interface
   (``make_solver``, ``SOLVER_FACTORIES``), HPIPM as a benchmark peer;
-- the planner, at this package's root: ``planner`` (problem data -> QP values -> solve -> ``Plan``, with the
-  fallback chain) and its default step as one compiled call (``compiled_step``);
+- the planner, at this package's root: ``planner`` (problem data as one ``OcpStepData`` per step -> QP values ->
+  solve -> ``Plan``, with the fallback chain) and its default step as one compiled call (``compiled_step``);
 - ``nmpc``: the same OCP on the exact model, solved by SQP to convergence (CasADi/IPOPT as its reference).
 
 The closed-loop controllers that stand on the planner (LTV-MPC, SRMPC) and on the NMPC are in ``srmpc.controllers``.
 """
 
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, StepOutcome
-from srmpc.mpc.problem import CollisionGeometry, OcpConfig, TrackingWeights
+from srmpc.mpc.problem import CollisionGeometry, OcpConfig, OcpStepData, TrackingWeights
 from srmpc.mpc.solvers import DEFAULT_SOLVER, available_solvers, make_solver
 
 __all__ = [
@@ -23,6 +23,7 @@ __all__ = [
     "CollisionGeometry",
     "LtvMpcPlanner",
     "OcpConfig",
+    "OcpStepData",
     "Plan",
     "StepOutcome",
     "TrackingWeights",

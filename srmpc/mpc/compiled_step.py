@@ -62,8 +62,8 @@ and their prediction (N + 1, V, 4), the collision rows (N, V, 3), (N, V), (N, V)
 uint64 of the last step's stages (reference/rollout, QP update, solve)."""
 
 StepConstants = namedtuple("StepConstants", [
-    "model", "control_period_s", "lane_centres_m", "circle_offsets", "collision_semi_axes",
-    "safety_semi_axes", "input_lower", "input_upper", "input_tolerance", "solver", "tolerance",
+    "model", "control_period_s", "lane_centres_m", "circle_offsets_m", "collision_semi_axes_m",
+    "safety_semi_axes_m", "input_lower", "input_upper", "input_tolerance", "solver", "tolerance",
     "max_iterations", "warm_start", "warm_start_settings"])
 """The OCP's constants: the bicycle's (h, substeps, l / 2, v_max, v_min), dt, lane centres, the collision
 geometry, the input box and its tolerance, ``solvers.SolverConstants``, and the solver's settings."""
@@ -169,8 +169,8 @@ def _update_qp(arrays, constants, n_observed):
     constant_velocity_rollout(arrays.observed_others[:n_observed], horizon, constants.control_period_s,
                               arrays.predicted_others)
     linearize_collision_constraints(arrays.linearization_states, arrays.predicted_others, n_observed,
-                                    constants.circle_offsets, constants.collision_semi_axes,
-                                    constants.safety_semi_axes, arrays.coefficients, arrays.row_lower,
+                                    constants.circle_offsets_m, constants.collision_semi_axes_m,
+                                    constants.safety_semi_axes_m, arrays.coefficients, arrays.row_lower,
                                     arrays.sigma_upper, arrays.critical_circle)
 
 
@@ -286,8 +286,8 @@ class CompiledPlannerStep:
             qp.collision_row_lower, qp.safety_slack_upper, qp.critical_circle, np.zeros(3, dtype=np.uint64))
         self.constants = StepConstants(
             tuple(planner.model.kernel_args), float(config.control_period_s),
-            np.asarray(planner.lane_centres_m, dtype=np.float64), qp.circle_offsets,
-            np.asarray(qp.collision_semi_axes, dtype=np.float64), np.asarray(qp.safety_semi_axes, dtype=np.float64),
+            np.asarray(planner.lane_centres_m, dtype=np.float64), qp.circle_offsets_m,
+            np.asarray(qp.collision_semi_axes_m, dtype=np.float64), np.asarray(qp.safety_semi_axes_m, dtype=np.float64),
             planner.input_lower, planner.input_upper, float(input_tolerance), solver.constants,
             solver.tolerance, solver.max_iterations, solver.warm_start, tuple(solver.warm_start_settings))
         self._rollout_arrays: dict = {}

@@ -30,6 +30,7 @@ from srmpc.mpc.problem import (
     STATE_DIM,
     LtvMpcQp,
     OcpConfig,
+    OcpStepData,
     TrafficPredictor,
     lane_keeping_tracking_reference,
     predict_constant_velocity,
@@ -38,6 +39,8 @@ from srmpc.mpc.solvers import DEFAULT_SOLVER, QpSolution, QpSolver, RiccatiInter
 
 LANE_HOLD_LATERAL_GAIN_1_S = 0.6
 """Emergency lane hold: heading command per lateral error and speed, psi_cmd = -k e / v [1/s]."""
+LANE_HOLD_MAX_HEADING_RAD = 0.3
+"""Emergency lane hold: the heading command's bound, |psi_cmd| <= this [rad]."""
 LANE_HOLD_HEADING_GAIN = 1.0
 """Emergency lane hold: steering per heading error [rad/rad]."""
 INPUT_BOUND_TOLERANCE = 1e-4
@@ -129,9 +132,9 @@ class LtvMpcPlanner:
         self.lane_centres_m = tuple(lane_centres_m)
         horizon = self.config.horizon
         self.input_lower = np.array([self.config.steering_bounds_rad[0],
-                                     self.config.acceleration_bounds_m_s2[0]])
+                                     self.config.acceleration_bounds_mps2[0]])
         self.input_upper = np.array([self.config.steering_bounds_rad[1],
-                                     self.config.acceleration_bounds_m_s2[1]])
+                                     self.config.acceleration_bounds_mps2[1]])
         self._default_tracking = lane_keeping_tracking_reference(horizon)
         self._no_inputs = np.zeros((horizon, INPUT_DIM))
         self._compiled: CompiledPlannerStep | None = None
@@ -173,7 +176,7 @@ class LtvMpcPlanner:
     def emergency_brake(self, ego_state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Full braking while steering back to the closest lane centre.
 
-        Steering law per stage: delta = clip(-k_psi (psi - psi_cmd)), psi_cmd = -k_y e / max(v, 1)
+        Steering law per stage: delta = clip(-k_psi (psi - psi_cmd)), psi_cmd = clip(-k_y e / max(v, 1), +-psi_max)
         with e = y - y_lane; acceleration = the lower acceleration bound, but not below what
         stops exactly at v = 0 within one step.
         """
@@ -185,7 +188,7 @@ class LtvMpcPlanner:
         for k in range(horizon):
             px, py, psi, speed = states[k]
             heading_command = -LANE_HOLD_LATERAL_GAIN_1_S * (py - lane) / max(speed, 1.0)
-            heading_command = float(np.clip(heading_command, -0.3, 0.3))
+            heading_command = float(np.clip(heading_command, -LANE_HOLD_MAX_HEADING_RAD, LANE_HOLD_MAX_HEADING_RAD))
             steering = -LANE_HOLD_HEADING_GAIN * (psi - heading_command)
             braking = max(self.input_lower[1], -max(speed, 0.0) / dt)
             inputs[k] = np.clip([steering, braking], self.input_lower, self.input_upper)
@@ -297,21 +300,20 @@ class LtvMpcPlanner:
     ) -> tuple[Plan | None, str]:
         """Linearize about (x^r, u^r), update the QP, solve: the plan, or None and the solver status.
 
+        The arguments become the step's ``OcpStepData`` (x^r_0 replaced by the measured state), shapes checked.
         Does not touch the fallback state (call :meth:`accept` with the plan that is applied).
         ``plan.solve_time_s`` is the solver's time, ``plan.step_time_s`` this call's.
         """
         start = time.perf_counter()
-        horizon = self.config.horizon
         ego_state = np.asarray(ego_state, dtype=np.float64).reshape(STATE_DIM)
-        last_input = np.asarray(last_input, dtype=np.float64).reshape(INPUT_DIM)
-        tracking_reference = self._checked_tracking(tracking_reference)
         ref_states = np.array(ref_states, dtype=np.float64)
-        ref_inputs = np.asarray(ref_inputs, dtype=np.float64)
-        if ref_states.shape != (horizon + 1, STATE_DIM) or ref_inputs.shape != (horizon, INPUT_DIM):
-            raise ValueError("the linearization reference must be ((N + 1, 4), (N, 2)) arrays")
+        if ref_states.shape != (self.config.horizon + 1, STATE_DIM):
+            raise ValueError(f"the linearization states must have shape {(self.config.horizon + 1, STATE_DIM)}, "
+                             f"not {ref_states.shape}")
         ref_states[0] = ego_state
-        solution = self._solve(ego_state, ref_states, ref_inputs, tracking_reference, last_input,
-                               predicted_others)
+        step = OcpStepData(ego_state, ref_states, ref_inputs, self._checked_tracking(tracking_reference),
+                           np.asarray(last_input, dtype=np.float64).reshape(INPUT_DIM), predicted_others)
+        solution = self._solve(step)
         plan = self._plan_from_solution(solution, source)
         if plan is not None:
             plan.solve_time_s = solution.solve_time_s
@@ -323,11 +325,10 @@ class LtvMpcPlanner:
         self.last_solved_plan = plan
         self.steps_since_solved = 0
 
-    def _solve(self, ego_state, ref_states, ref_inputs, tracking_reference, last_input,
-               predicted) -> QpSolution:
-        self.qp.update(ego_state, ref_states, ref_inputs, tracking_reference, last_input,
-                       predicted)
-        warm_start = (self.qp.pack(ref_states, ref_inputs)
+    def _solve(self, step: OcpStepData) -> QpSolution:
+        """``qp.update(step)``, then the solve, warm-started at (x^r, u^r) if the solver accepts it."""
+        self.qp.update(step)
+        warm_start = (self.qp.pack(step.linearization_states, step.linearization_inputs)
                       if getattr(self.solver, "accepts_warm_start", True) else None)
         solve_start = time.perf_counter()
         solution = self.solver.solve(self.qp, warm_start)

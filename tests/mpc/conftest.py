@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from srmpc.mpc.problem import LtvMpcQp, OcpConfig, lane_keeping_tracking_reference, predict_constant_velocity
+from srmpc.mpc.problem import (
+    LtvMpcQp,
+    OcpConfig,
+    OcpStepData,
+    lane_keeping_tracking_reference,
+    predict_constant_velocity,
+)
 
 SIX_VEHICLES = np.array([
     [30.0, 4.0, 0.0, 20.0], [-20.0, 4.0, 0.0, 25.0], [10.0, 0.0, 0.0, 24.0],
@@ -24,6 +30,6 @@ def loaded_qp() -> LtvMpcQp:
     ego = np.array([0.0, 4.0, 0.0, 22.0])
     inputs = np.zeros((horizon, 2))
     states = qp.model.rollout(ego, inputs)
-    qp.update(ego, states, inputs, lane_keeping_tracking_reference(horizon), np.zeros(2),
-              predict_constant_velocity(SIX_VEHICLES, horizon, config.control_period_s))
+    qp.update(OcpStepData(ego, states, inputs, lane_keeping_tracking_reference(horizon), np.zeros(2),
+                          predict_constant_velocity(SIX_VEHICLES, horizon, config.control_period_s)))
     return qp

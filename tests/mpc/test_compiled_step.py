@@ -69,13 +69,35 @@ def test_warm_started_plans_agree_with_clarabel(controller_name):
     assert max(errors) < FIRST_INPUT_TOLERANCE
 
 
-def test_the_default_paths_take_the_compiled_step():
+@pytest.mark.parametrize("controller_name", ["ltv_mpc", "srmpc"])
+def test_the_default_paths_take_the_compiled_step(controller_name):
+    """On the default config every step is one compiled call whose solution is the applied plan: the Python
+    path's QP (``LtvMpcPlanner.solve_about``) never runs, and the action is the compiled solution's u_0."""
     config = to_objects(compose_config(["+experiment=light_traffic", "tracking.enabled=false",
-                                        "controller=srmpc"]))
+                                        f"controller={controller_name}"]))
     env = TwinScenarioEnv(config.scenario)
     controller = build_controller(config, env)
-    assert controller.compiled_step() is not None
+    compiled = controller.planner.compiled_step()
+    assert compiled is not None
+    calls = []
+    compiled_call = getattr(compiled, controller_name)  # CompiledPlannerStep.ltv_mpc / .srmpc
+    setattr(compiled, controller_name, lambda *args: calls.append(1) or compiled_call(*args))
+
+    def python_qp(*args, **kwargs):
+        raise AssertionError("the Python path's QP ran")
+
+    controller.planner.solve_about = python_qp
     observation, _ = env.reset(seed=3)
-    controller.act(observation, env.unwrapped.measurement)
-    assert controller.last_timing.rollout_us > 0.0
-    assert controller.last_plan.reference_source.value == "given"
+    controller.reset()
+    steps = 5
+    for step in range(steps):
+        action = controller.act(observation, env.unwrapped.measurement)
+        plan = controller.last_plan if controller_name == "srmpc" else controller.last_report.plan
+        assert len(calls) == step + 1
+        assert plan.outcome.value == "solved"
+        assert plan.reference_source.value == ("given" if controller_name == "srmpc" else
+                                               "lane_following" if step == 0 else "shifted_previous")
+        assert np.array_equal(action, compiled.solver.workspace[0].inputs[0])
+        assert np.array_equal(plan.inputs, compiled.solver.workspace[0].inputs)
+        observation, _, terminated, truncated, _ = env.step(action)
+        assert not (terminated or truncated)

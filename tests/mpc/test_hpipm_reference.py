@@ -9,7 +9,13 @@ through its C API, 1.96e-6 through CasADi's plugin; 1.29e-6 far down the road) a
 import numpy as np
 import pytest
 
-from srmpc.mpc.problem import LtvMpcQp, OcpConfig, lane_keeping_tracking_reference, predict_constant_velocity
+from srmpc.mpc.problem import (
+    LtvMpcQp,
+    OcpConfig,
+    OcpStepData,
+    lane_keeping_tracking_reference,
+    predict_constant_velocity,
+)
 from srmpc.mpc.solvers import make_solver
 
 casadi = pytest.importorskip("casadi", reason="casadi (optional extra 'nmpc') is not installed")
@@ -30,9 +36,9 @@ def _qp(six_vehicles: np.ndarray, n_vehicles: int, ego_x: float = 0.0) -> LtvMpc
     horizon = config.horizon
     ego = np.array([ego_x, 4.0, 0.0, 22.0])
     inputs = np.zeros((horizon, 2))
-    qp.update(ego, qp.model.rollout(ego, inputs), inputs, lane_keeping_tracking_reference(horizon),
-              np.array([0.01, 0.3]),
-              predict_constant_velocity(six_vehicles[:n_vehicles], horizon, config.control_period_s))
+    qp.update(OcpStepData(ego, qp.model.rollout(ego, inputs), inputs, lane_keeping_tracking_reference(horizon),
+                          np.array([0.01, 0.3]),
+                          predict_constant_velocity(six_vehicles[:n_vehicles], horizon, config.control_period_s)))
     return qp
 
 

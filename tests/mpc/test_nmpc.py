@@ -159,10 +159,10 @@ def numpy_infeasibility(solver, point, measured_state, others) -> tuple[float, f
     """(theta_1, theta_inf) with numpy: defects through ``KinematicBicycle.linearize``, the ellipse norms through
     ``collision.collision_norms`` (the norms of every circle, then the minimum)."""
     config, geometry, n_obs = solver.config, solver.config.geometry, others.shape[1]
-    lower = np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_m_s[0]])
-    upper = np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_m_s[1]])
-    input_lower = np.array([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]])
-    input_upper = np.array([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]])
+    lower = np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_mps[0]])
+    upper = np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_mps[1]])
+    input_lower = np.array([config.steering_bounds_rad[0], config.acceleration_bounds_mps2[0]])
+    input_upper = np.array([config.steering_bounds_rad[1], config.acceleration_bounds_mps2[1]])
     next_states = solver.model.linearize(point.states, point.inputs)[0]
     parts = [np.abs(point.states[1:] - next_states).ravel(), np.abs(point.states[0] - measured_state),
              np.maximum(lower - point.states[1:], 0.0).ravel(), np.maximum(point.states[1:] - upper, 0.0).ravel(),
@@ -205,12 +205,12 @@ def test_compiled_nlp_functions_equal_the_numpy_formulas(states, solver, guess):
             assert theta_inf == pytest.approx(reference_inf, rel=1e-13, abs=1e-15)
         guess_states, guess_inputs = random_point(rng, states, i, guess).states, states[f"{guess}_inputs"][i]
         start = solver.initial_point(ego, others, guess_states, guess_inputs)
-        lower = [-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_m_s[0]]
-        upper = [np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_m_s[1]]
+        lower = [-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_mps[0]]
+        upper = [np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_mps[1]]
         np.testing.assert_array_equal(start.states[1:], np.clip(guess_states[1:], lower, upper))
         np.testing.assert_array_equal(start.states[0], ego)
         np.testing.assert_array_equal(start.inputs, np.clip(guess_inputs, *np.transpose(
-            [config.steering_bounds_rad, config.acceleration_bounds_m_s2])))
+            [config.steering_bounds_rad, config.acceleration_bounds_mps2])))
         n, geometry = others.shape[1], config.geometry
         if n:
             norms = [collision_norms(start.states[1:], others[1:], geometry.circle_offsets_m, axes).min(axis=2)
@@ -238,7 +238,7 @@ def test_next_state_is_the_model_step_bit_for_bit(solver):
     bicycle = model.parameters
     for _ in range(2000):
         state = np.array([rng.uniform(0, 500), rng.uniform(-2, 14), rng.uniform(-0.5, 0.5),
-                          rng.uniform(1.2 * bicycle.min_speed_m_s, 1.2 * bicycle.max_speed_m_s)])
+                          rng.uniform(1.2 * bicycle.min_speed_mps, 1.2 * bicycle.max_speed_mps)])
         control = rng.uniform([-0.3, -8.0], [0.3, 8.0])
         following = np.empty(4)
         next_state(state, control, tuple(model.kernel_args), following)

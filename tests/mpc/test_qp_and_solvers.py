@@ -6,6 +6,7 @@ import pytest
 from srmpc.mpc.problem import (
     LtvMpcQp,
     OcpConfig,
+    OcpStepData,
     collision_norms,
     lane_keeping_tracking_reference,
     predict_constant_velocity,
@@ -21,9 +22,9 @@ def test_pattern_is_fixed_with_explicit_zeros(six_vehicles):
     for n_vehicles in (6, 0, 3):  # empty slots write explicit zeros into the pattern
         ego = np.array([0.0, 8.0, 0.0, 25.0])
         inputs = np.zeros((horizon, 2))
-        qp.update(ego, qp.model.rollout(ego, inputs), inputs,
-                  lane_keeping_tracking_reference(horizon), np.zeros(2),
-                  predict_constant_velocity(six_vehicles[:n_vehicles], horizon, 0.2))
+        qp.update(OcpStepData(ego, qp.model.rollout(ego, inputs), inputs,
+                              lane_keeping_tracking_reference(horizon), np.zeros(2),
+                              predict_constant_velocity(six_vehicles[:n_vehicles], horizon, 0.2)))
         patterns.append([(m.indptr.copy(), m.indices.copy()) for m in (
             qp.equality_matrix, qp.inequality_matrix, qp.general_matrix)])
     for other in patterns[1:]:
@@ -80,7 +81,7 @@ def test_constraints_hold_at_solution(loaded_qp, six_vehicles, name):
     states, inputs, collision_slacks, _ = qp.split_solution(solution.z)
     config = qp.config
     assert np.all(inputs[:, 0] <= config.steering_bounds_rad[1] + tolerance)
-    assert np.all(np.abs(inputs[:, 1]) <= config.acceleration_bounds_m_s2[1] + tolerance)
+    assert np.all(np.abs(inputs[:, 1]) <= config.acceleration_bounds_mps2[1] + tolerance)
     assert np.all(states[1:, 1] >= config.lateral_bounds_m[0] - tolerance)
     assert np.all(states[1:, 1] <= config.lateral_bounds_m[1] + tolerance)
     # with no slack used, the linearized half-planes imply the true ellipse constraint for the
@@ -101,8 +102,8 @@ def test_linearized_row_is_tangent_half_plane():
     other = np.array([[12.0, 8.0, 0.0, 20.0]])
     inputs = np.zeros((2, 2))
     states = qp.model.rollout(ego, inputs)
-    qp.update(ego, states, inputs, lane_keeping_tracking_reference(2), np.zeros(2),
-              predict_constant_velocity(other, 2, 0.2))
+    qp.update(OcpStepData(ego, states, inputs, lane_keeping_tracking_reference(2), np.zeros(2),
+                          predict_constant_velocity(other, 2, 0.2)))
     row = qp.inequality_matrix.toarray()[0]
     x1 = qp.layout.state_start[1]
     # straight behind: normal points backwards, only x and psi... psi term is zero at psi = 0
@@ -115,3 +116,19 @@ def test_linearized_row_is_tangent_half_plane():
     np.testing.assert_allclose(boundary_x + 1.25, 16.0 - a_safe, atol=1e-9)
     np.testing.assert_allclose(qp.variable_upper[qp.layout.safety_slack_indices()[0, 0]],
                                a_safe / a - 1.0, atol=1e-9)
+
+
+def test_step_data_names_the_field_of_a_wrong_shape():
+    horizon = 3
+    fields = dict(measured_state=np.zeros(4), linearization_states=np.zeros((horizon + 1, 4)),
+                  linearization_inputs=np.zeros((horizon, 2)), tracking_reference=np.zeros((horizon + 1, 4)),
+                  last_input=np.zeros(2), predicted_others=np.zeros((horizon + 1, 2, 4)))
+    step = OcpStepData(**fields)
+    assert (step.horizon, step.n_observed) == (horizon, 2)
+    for name, wrong in (("measured_state", np.zeros(3)), ("linearization_states", np.zeros((horizon, 4))),
+                        ("linearization_inputs", np.zeros(horizon)), ("tracking_reference", np.zeros((horizon, 4))),
+                        ("last_input", np.zeros(4)), ("predicted_others", np.zeros((horizon, 2, 4)))):
+        with pytest.raises(ValueError, match=f"OcpStepData.{name} must have shape"):
+            OcpStepData(**{**fields, name: wrong})
+    with pytest.raises(ValueError, match="horizon 3 is not the QP's N=25"):
+        LtvMpcQp(OcpConfig()).update(step)

@@ -6,7 +6,7 @@ import pytest
 from srmpc.controllers.ltv_mpc import LtvMpcController
 from srmpc.mpc import OcpConfig, StepOutcome
 from srmpc.mpc.planner import LtvMpcPlanner
-from srmpc.mpc.problem import LtvMpcQp, lane_keeping_tracking_reference, predict_constant_velocity
+from srmpc.mpc.problem import LtvMpcQp, OcpStepData, lane_keeping_tracking_reference, predict_constant_velocity
 from srmpc.mpc.solvers import make_solver
 from srmpc.scenario.parameters import ScenarioParameters
 from srmpc.sim.single_env import TwinScenarioEnv
@@ -30,10 +30,10 @@ def random_qp(rng: np.random.Generator, n_others: int) -> LtvMpcQp:
     others = np.column_stack([rng.uniform(-40, 40, n_others),
                               rng.choice([0.0, 4.0, 8.0], n_others) + rng.normal(0, 0.3, n_others),
                               rng.normal(0, 0.02, n_others), rng.uniform(15, 30, n_others)])
-    qp.update(ego, states, inputs,
-              lane_keeping_tracking_reference(horizon, speed_m_s=rng.uniform(20, 30)),
-              rng.uniform([-0.1, -5], [0.1, 5]),
-              predict_constant_velocity(others, horizon, config.control_period_s))
+    qp.update(OcpStepData(ego, states, inputs,
+                          lane_keeping_tracking_reference(horizon, speed_mps=rng.uniform(20, 30)),
+                          rng.uniform([-0.1, -5], [0.1, 5]),
+                          predict_constant_velocity(others, horizon, config.control_period_s)))
     return qp
 
 
@@ -65,9 +65,9 @@ def test_instance_with_collision_slack_in_use():
     ego = np.array([0.0, 4.0, 0.0, 25.0])
     inputs = np.zeros((config.horizon, 2))
     others = np.array([[2.0, 4.5, 0.0, 25.0], [30.0, 8.0, 0.0, 20.0]])
-    qp.update(ego, qp.model.rollout(ego, inputs), inputs,
-              lane_keeping_tracking_reference(config.horizon), np.zeros(2),
-              predict_constant_velocity(others, config.horizon, config.control_period_s))
+    qp.update(OcpStepData(ego, qp.model.rollout(ego, inputs), inputs,
+                          lane_keeping_tracking_reference(config.horizon), np.zeros(2),
+                          predict_constant_velocity(others, config.horizon, config.control_period_s)))
     assert_agrees_with_clarabel(qp)
     solution = make_solver("riccati_ipm").solve(qp)
     collision_slacks = qp.split_solution(solution.z)[2]
@@ -104,9 +104,9 @@ def test_infeasible_qp_is_reported_not_solved_and_planner_falls_back():
     qp = LtvMpcQp(config)
     ego = np.array([0.0, 30.0, 0.0, 20.0])
     inputs = np.zeros((config.horizon, 2))
-    qp.update(ego, qp.model.rollout(ego, inputs), inputs,
-              lane_keeping_tracking_reference(config.horizon), np.zeros(2),
-              np.zeros((config.horizon + 1, 0, 4)))
+    qp.update(OcpStepData(ego, qp.model.rollout(ego, inputs), inputs,
+                          lane_keeping_tracking_reference(config.horizon), np.zeros(2),
+                          np.zeros((config.horizon + 1, 0, 4))))
     solution = make_solver("riccati_ipm").solve(qp)
     assert not solution.solved
     assert solution.z is None

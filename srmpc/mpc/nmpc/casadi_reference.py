@@ -71,13 +71,66 @@ def _discrete_bicycle(config: OcpConfig):
     for _ in range(bicycle.n_substeps):
         v = state[3]
         beta = ca.atan(0.5 * ca.tan(u[0]))
-        accel = ca.if_else(ca.logic_and(v > bicycle.max_speed_m_s, u[1] > bicycle.max_speed_m_s - v),
-                           bicycle.max_speed_m_s - v,
-                           ca.if_else(ca.logic_and(v < bicycle.min_speed_m_s, u[1] < bicycle.min_speed_m_s - v),
-                                      bicycle.min_speed_m_s - v, u[1]))
+        accel = ca.if_else(ca.logic_and(v > bicycle.max_speed_mps, u[1] > bicycle.max_speed_mps - v),
+                           bicycle.max_speed_mps - v,
+                           ca.if_else(ca.logic_and(v < bicycle.min_speed_mps, u[1] < bicycle.min_speed_mps - v),
+                                      bicycle.min_speed_mps - v, u[1]))
         state = ca.vertcat(state[0] + h * v * ca.cos(state[2] + beta), state[1] + h * v * ca.sin(state[2] + beta),
                            state[2] + h * v * ca.sin(beta) / half_length, v + h * accel)
     return ca.Function("f", [x, u], [state])
+
+
+def _cost_and_dynamics(config: OcpConfig, states, inputs, slacks, sigmas, measured, last_input, reference):
+    """F (``sqp``'s module doc) and the equality constraints x_0 - x_hat, x_{k+1} - f(x_k, u_k) (4 (N + 1) rows)."""
+    weights = config.weights
+    f = _discrete_bicycle(config)
+    q, r, s = (ca.DM(list(weights.state)), ca.DM(list(weights.input)), ca.DM(list(weights.input_rate)))
+    cost = 0
+    constraints = [states[:, 0] - measured]
+    previous = last_input
+    for k in range(config.horizon):
+        cost += ca.dot(r, inputs[:, k] ** 2) + ca.dot(s, (inputs[:, k] - previous) ** 2)
+        cost += ca.dot(q, (states[:, k + 1] - reference[:, k + 1]) ** 2)
+        previous = inputs[:, k]
+        constraints.append(states[:, k + 1] - f(states[:, k], inputs[:, k]))
+    cost += weights.collision_slack_linear * ca.sum1(slacks) + weights.collision_slack_quadratic * ca.sumsqr(slacks)
+    cost += weights.safety_slack_linear * ca.sum1(sigmas) + weights.safety_slack_quadratic * ca.sumsqr(sigmas)
+    return cost, constraints
+
+
+def _ellipse_constraints(config: OcpConfig, n_observed: int, states, slacks, sigmas, others) -> list:
+    """Per stage k = 1..N, vehicle j and ego circle c: g_E + s_j and g_E' + sigma_kj (both >= 1; module doc)."""
+    geometry, nv = config.geometry, n_observed
+    constraints = []
+    offsets = np.asarray(geometry.circle_offsets_m)
+    for k in range(1, config.horizon + 1):
+        px, py, psi = states[0, k], states[1, k], states[2, k]
+        for j in range(nv):
+            other = others[:, k * nv + j]
+            sigma = sigmas[(k - 1) * nv + j]
+            for d in offsets:
+                cx, cy = px + float(d) * ca.cos(psi), py + float(d) * ca.sin(psi)
+                constraints.append(_ellipse_norm(cx, cy, other, geometry.collision_semi_axes_m) + slacks[j])
+                constraints.append(_ellipse_norm(cx, cy, other, geometry.safety_semi_axes_m) + sigma)
+    return constraints
+
+
+def _variable_bounds(config: OcpConfig, n_variables: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) of w = (vec x, vec u, s, sigma): y and v boxes on x_1..N, delta and a boxes on u, slacks >= 0."""
+    horizon = config.horizon
+    lower = np.full(n_variables, -np.inf)
+    upper = np.full(n_variables, np.inf)
+    state_lower = np.full((4, horizon + 1), -np.inf)
+    state_upper = np.full((4, horizon + 1), np.inf)
+    state_lower[1, 1:], state_upper[1, 1:] = config.lateral_bounds_m
+    state_lower[3, 1:], state_upper[3, 1:] = config.speed_bounds_mps
+    n_states = 4 * (horizon + 1)
+    lower[:n_states], upper[:n_states] = state_lower.ravel(order="F"), state_upper.ravel(order="F")
+    input_lower = np.tile([config.steering_bounds_rad[0], config.acceleration_bounds_mps2[0]], horizon)
+    input_upper = np.tile([config.steering_bounds_rad[1], config.acceleration_bounds_mps2[1]], horizon)
+    lower[n_states:n_states + 2 * horizon], upper[n_states:n_states + 2 * horizon] = input_lower, input_upper
+    lower[n_states + 2 * horizon:] = 0.0
+    return lower, upper
 
 
 class IpoptOcp:
@@ -88,7 +141,6 @@ class IpoptOcp:
         self.config = config
         self.n_observed = n_observed
         horizon, nv = config.horizon, n_observed
-        weights, geometry = config.weights, config.geometry
         states = ca.SX.sym("x", 4, horizon + 1)
         inputs = ca.SX.sym("u", 2, horizon)
         slacks = ca.SX.sym("s", nv)
@@ -97,29 +149,10 @@ class IpoptOcp:
         last_input = ca.SX.sym("u_hat", 2)
         reference = ca.SX.sym("x_ref", 4, horizon + 1)
         others = ca.SX.sym("others", 4, (horizon + 1) * nv)
-        f = _discrete_bicycle(config)
-        q, r, s = (ca.DM(list(weights.state)), ca.DM(list(weights.input)), ca.DM(list(weights.input_rate)))
-        cost = 0
-        constraints = [states[:, 0] - measured]
-        previous = last_input
-        for k in range(horizon):
-            cost += ca.dot(r, inputs[:, k] ** 2) + ca.dot(s, (inputs[:, k] - previous) ** 2)
-            cost += ca.dot(q, (states[:, k + 1] - reference[:, k + 1]) ** 2)
-            previous = inputs[:, k]
-            constraints.append(states[:, k + 1] - f(states[:, k], inputs[:, k]))
-        cost += weights.collision_slack_linear * ca.sum1(slacks) + weights.collision_slack_quadratic * ca.sumsqr(slacks)
-        cost += weights.safety_slack_linear * ca.sum1(sigmas) + weights.safety_slack_quadratic * ca.sumsqr(sigmas)
+        cost, constraints = _cost_and_dynamics(config, states, inputs, slacks, sigmas, measured, last_input,
+                                               reference)
         n_equalities = 4 * (horizon + 1)
-        offsets = np.asarray(geometry.circle_offsets_m)
-        for k in range(1, horizon + 1):
-            px, py, psi = states[0, k], states[1, k], states[2, k]
-            for j in range(nv):
-                other = others[:, k * nv + j]
-                sigma = sigmas[(k - 1) * nv + j]
-                for d in offsets:
-                    cx, cy = px + float(d) * ca.cos(psi), py + float(d) * ca.sin(psi)
-                    constraints.append(_ellipse_norm(cx, cy, other, geometry.collision_semi_axes_m) + slacks[j])
-                    constraints.append(_ellipse_norm(cx, cy, other, geometry.safety_semi_axes_m) + sigma)
+        constraints += _ellipse_constraints(config, nv, states, slacks, sigmas, others)
         variables = ca.vertcat(ca.vec(states), ca.vec(inputs), slacks, sigmas)
         parameters = ca.vertcat(measured, last_input, ca.vec(reference), ca.vec(others))
         g = ca.vertcat(*constraints)
@@ -128,20 +161,8 @@ class IpoptOcp:
         """(w, p) -> (F, g): the NLP's functions, for checks."""
         self._lbg = np.concatenate([np.zeros(n_equalities), np.ones(g.numel() - n_equalities)])
         self._ubg = np.concatenate([np.zeros(n_equalities), np.full(g.numel() - n_equalities, np.inf)])
-        lower = np.full(self.n_variables, -np.inf)
-        upper = np.full(self.n_variables, np.inf)
-        state_lower = np.full((4, horizon + 1), -np.inf)
-        state_upper = np.full((4, horizon + 1), np.inf)
-        state_lower[1, 1:], state_upper[1, 1:] = config.lateral_bounds_m
-        state_lower[3, 1:], state_upper[3, 1:] = config.speed_bounds_m_s
-        n_states = 4 * (horizon + 1)
-        lower[:n_states], upper[:n_states] = state_lower.ravel(order="F"), state_upper.ravel(order="F")
-        input_lower = np.tile([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]], horizon)
-        input_upper = np.tile([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]], horizon)
-        lower[n_states:n_states + 2 * horizon], upper[n_states:n_states + 2 * horizon] = input_lower, input_upper
-        lower[n_states + 2 * horizon:] = 0.0
-        self._lbx, self._ubx = lower, upper
-        self._n_states = n_states
+        self._lbx, self._ubx = _variable_bounds(config, self.n_variables)
+        self._n_states = 4 * (horizon + 1)
         options = {"ipopt.tol": tolerance, "ipopt.max_iter": max_iterations, "ipopt.print_level": 0,
                    "print_time": False, "ipopt.sb": "yes"}
         nlp = {"x": variables, "p": parameters, "f": cost, "g": g}

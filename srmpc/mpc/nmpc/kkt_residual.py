@@ -133,21 +133,11 @@ def _input_gradient(inputs, last_input, r, s, k, c):
     return gradient
 
 
-@numba.njit(cache=True, error_model="numpy")
-def kkt_residuals(w, n_obs, last_input, tracking_reference, frames, constants, workspace, n_rows, sigma_upper,
-                  collision_rows, safety_rows):
-    """(r_d, r_c, ||nu||_1 + ||z||_1, ||z||_1, n_E, n_I) of the module doc at the plan w, with the multipliers of
-    the last QP in the Riccati solver's ``workspace`` (``solvers.solve_compact``'s, n_rows rows, the row vehicles and
-    sigma_hi in the subproblem's arrays)."""
-    horizon = tracking_reference.shape[0] - 1
-    states, inputs, slacks, sigmas = point_parts(w, horizon, n_obs)
-    weights, q, r, s = constants.slack_weights, constants.state_weight, constants.input_weight, constants.rate_weight
-    z, offsets = compact_multipliers(workspace, n_rows)
-    z_collision, z_safety, z_sigmas = np.empty((horizon, n_obs)), np.empty((horizon, n_obs)), np.empty((horizon, n_obs))
-    z_slacks = np.empty(2 * n_obs)
-    _nlp_multipliers(z, offsets, n_rows, n_obs, sigma_upper, collision_rows, safety_rows, slacks, sigmas, weights,
-                     z_collision, z_safety, z_slacks, z_sigmas)
-    # the Jacobians at w: dynamics, and the ellipse rows' gradients (on x, y, psi of x_k) with the norms g, g'
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _jacobians_at(states, inputs, frames, n_obs, constants):
+    """The Jacobians at w (module doc): A_k, B_k of the dynamics, and the ellipse rows' gradients on (x, y, psi) of
+    x_k with the norms g, g'. Returns (A, B, grad g, grad g', g, g')."""
+    horizon = inputs.shape[0]
     next_states, state_matrices = np.empty((horizon, 4)), np.empty((horizon, 4, 4))
     input_matrices, affine_offsets = np.empty((horizon, 4, 2)), np.empty((horizon, 4))
     linearize_dynamics(states, inputs, constants.model, next_states, state_matrices, input_matrices, affine_offsets)
@@ -155,16 +145,25 @@ def kkt_residuals(w, n_obs, last_input, tracking_reference, frames, constants, w
     collision_norm, safety_norm = np.empty((horizon, n_obs)), np.empty((horizon, n_obs))
     row_lower = np.empty((horizon, n_obs))
     if n_obs:
-        linearize_ellipse_rows(states, frames, n_obs, constants.circle_offsets, constants.collision_semi_axes,
+        linearize_ellipse_rows(states, frames, n_obs, constants.circle_offsets_m, constants.collision_semi_axes_m,
                                collision_gradient, row_lower, collision_norm)
-        linearize_ellipse_rows(states, frames, n_obs, constants.circle_offsets, constants.safety_semi_axes,
+        linearize_ellipse_rows(states, frames, n_obs, constants.circle_offsets_m, constants.safety_semi_axes_m,
                                safety_gradient, row_lower, safety_norm)
+    return state_matrices, input_matrices, collision_gradient, safety_gradient, collision_norm, safety_norm
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _stage_residuals(states, inputs, last_input, tracking_reference, constants, z, offsets, z_collision, z_safety,
+                     state_matrices, input_matrices, collision_gradient, safety_gradient):
+    """x_k, k = N..1 (module doc): nu_k by the adjoint recursion, then u_{k-1}'s stationarity and the stage's bound
+    complementarity. Returns (r_d, r_c, ||z||_1, ||nu||_1) over the stages' variables and bounds."""
+    horizon, n_obs = inputs.shape[0], z_collision.shape[1]
+    q, r, s = constants.state_weight, constants.input_weight, constants.rate_weight
     o_ylo, o_yhi, o_vlo, o_vhi, o_ulo, o_uhi = offsets[4], offsets[5], offsets[6], offsets[7], offsets[8], offsets[9]
     lower, upper = constants.state_lower, constants.state_upper
     input_lower, input_upper = constants.input_lower, constants.input_upper
     stationarity, complementarity, z_norm, nu_norm = 0.0, 0.0, 0.0, 0.0
     nu, nu_next = np.zeros(4), np.zeros(4)
-    # x_k (k = N..1): nu_k from the adjoint recursion; then u_{k-1}'s stationarity and the stage's complementarity
     for k in range(horizon, 0, -1):
         stage = k - 1
         for c in range(4):
@@ -198,7 +197,15 @@ def kkt_residuals(w, n_obs, last_input, tracking_reference, frames, constants, w
         for c in range(4):
             nu_norm += abs(nu[c])
             nu_next[c] = nu[c]
-    # the slacks s_j, s'_j and sigma_kj: stationarity, complementarity of their bounds and of the rows
+    return stationarity, complementarity, z_norm, nu_norm
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _slack_residuals(slacks, sigmas, weights, z_collision, z_safety, z_slacks, z_sigmas, collision_norm, safety_norm,
+                     stationarity, complementarity, z_norm):
+    """The slacks s_j, s'_j and sigma_kj (module doc): their stationarity, the complementarity of their bounds and
+    of the rows, continuing the running (r_d, r_c, ||z||_1), which it returns."""
+    horizon, n_obs = z_collision.shape
     for j in range(n_obs):
         collision_sum, safety_sum = 0.0, 0.0
         for k in range(horizon):
@@ -218,6 +225,32 @@ def kkt_residuals(w, n_obs, last_input, tracking_reference, frames, constants, w
             stationarity = max(stationarity, abs(slack_gradient - row_sum - z_slacks[index]))
             complementarity = max(complementarity, abs(z_slacks[index] * slacks[index]))
             z_norm += abs(z_slacks[index])
+    return stationarity, complementarity, z_norm
+
+
+@numba.njit(cache=True, error_model="numpy")
+def kkt_residuals(w, n_obs, last_input, tracking_reference, frames, constants, workspace, n_rows, sigma_upper,
+                  collision_rows, safety_rows):
+    """(r_d, r_c, ||nu||_1 + ||z||_1, ||z||_1, n_E, n_I) of the module doc at the plan w, with the multipliers of
+    the last QP in the Riccati solver's ``workspace`` (``solvers.solve_compact``'s, n_rows rows, the row vehicles and
+    sigma_hi in the subproblem's arrays): the QP's z in the NLP's layout, the Jacobians at w, the stages' residuals
+    (with nu), then the slacks'."""
+    horizon = tracking_reference.shape[0] - 1
+    states, inputs, slacks, sigmas = point_parts(w, horizon, n_obs)
+    weights = constants.slack_weights
+    z, offsets = compact_multipliers(workspace, n_rows)
+    z_collision, z_safety, z_sigmas = np.empty((horizon, n_obs)), np.empty((horizon, n_obs)), np.empty((horizon, n_obs))
+    z_slacks = np.empty(2 * n_obs)
+    _nlp_multipliers(z, offsets, n_rows, n_obs, sigma_upper, collision_rows, safety_rows, slacks, sigmas, weights,
+                     z_collision, z_safety, z_slacks, z_sigmas)
+    state_matrices, input_matrices, collision_gradient, safety_gradient, collision_norm, safety_norm = _jacobians_at(
+        states, inputs, frames, n_obs, constants)
+    stationarity, complementarity, z_norm, nu_norm = _stage_residuals(
+        states, inputs, last_input, tracking_reference, constants, z, offsets, z_collision, z_safety, state_matrices,
+        input_matrices, collision_gradient, safety_gradient)
+    stationarity, complementarity, z_norm = _slack_residuals(
+        slacks, sigmas, weights, z_collision, z_safety, z_slacks, z_sigmas, collision_norm, safety_norm,
+        stationarity, complementarity, z_norm)
     n_equalities = 4 * horizon
     n_inequalities = 3 * horizon * n_obs + 2 * n_obs + 8 * horizon
     return stationarity, complementarity, nu_norm + z_norm, z_norm, n_equalities, n_inequalities

@@ -31,26 +31,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from srmpc.mpc.problem import closest_circle
+
 DEGENERATE_NORM = 1e-6
 """Ellipse norm (dimensionless) below which the gradient direction is replaced (module doc)."""
-
-
-@numba.njit(inline="always")
-def closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h, circle_offsets, a, b):
-    """(g, d_c, longitudinal, lateral) of the ego circle c* = argmin_c g(p_c(x)) in the ellipse (a, b) of the
-    vehicle at (ox, oy) with heading (cos_h, sin_h): its norm, its offset [m] and its offset from the centre in
-    the vehicle's frame [m]."""
-    best_norm, best_d, best_l, best_t = np.inf, 0.0, 0.0, 0.0
-    for c in range(circle_offsets.shape[0]):
-        d = circle_offsets[c]
-        dx = px + d * cos_psi - ox
-        dy = py + d * sin_psi - oy
-        longitudinal = cos_h * dx + sin_h * dy
-        lateral = -sin_h * dx + cos_h * dy
-        norm = np.sqrt((longitudinal / a) ** 2 + (lateral / b) ** 2)
-        if norm < best_norm:
-            best_norm, best_d, best_l, best_t = norm, d, longitudinal, lateral
-    return best_norm, best_d, best_l, best_t
 
 
 @numba.njit(cache=True)
@@ -91,8 +75,9 @@ def linearize_ellipse_rows(states, frames, n_others, circle_offsets, semi_axes,
         sin_psi = np.sin(psi)
         for j in range(n_others):
             ox, oy, cos_h, sin_h = frames[k + 1, j, 0], frames[k + 1, j, 1], frames[k + 1, j, 2], frames[k + 1, j, 3]
-            best_norm, best_d, best_l, best_t = closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h,
-                                                               circle_offsets, a, b)
+            best_norm, best, best_l, best_t = closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h,
+                                                             circle_offsets, a, b)
+            best_d = circle_offsets[best]
             if best_norm < DEGENERATE_NORM:
                 grad_l, grad_t = -1.0 / a, 0.0
             else:

@@ -273,65 +273,102 @@ def _remember_pair(iterates, images, oldest, stored, w, image):
     return oldest, stored
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _solve_subproblem(w, horizon, n_obs, frames, nlp, scratch, qp, qp_settings, workspace, memory, compact, record,
+                      iteration, candidate):
+    """Step 1 (module doc): the QP subproblem linearized about w (screened rows), solved by the Riccati interior
+    point, its point w_QP into ``candidate``; the QP's cycles, iterations and rows into ``record`` at ``iteration``.
+    Returns whether it was solved and its point is one of the NLP (else the warm-start memory is invalidated)."""
+    n_collision, n_safety = screen(w, horizon, n_obs, frames, nlp, scratch, qp.collision_rows, qp.safety_rows)
+    n_rows = linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, nlp, qp)
+    started = read_cycle_counter()
+    qp_status, qp_iterations, solution = solve_compact(qp, n_rows, qp.measured_state, qp_settings, workspace,
+                                                       memory, compact)
+    record.qp_cycles[iteration] = read_cycle_counter() - started
+    record.qp_iterations[iteration] = qp_iterations
+    record.qp_rows[iteration] = n_rows
+    if qp_status != STATUS_SOLVED:
+        return False
+    if not qp_candidate(w, horizon, n_obs, solution, n_collision, n_safety, qp, candidate):
+        memory.valid[0] = False
+        return False
+    return True
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _step_norm(w, candidate, step):
+    """Step 2 (module doc): the step p = w_QP - w into ``step``; returns ||p||_inf."""
+    stationarity = 0.0
+    for i in range(w.shape[0]):
+        step[i] = candidate[i] - w[i]
+        stationarity = max(stationarity, abs(step[i]))
+    return stationarity
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _penalty_update(w, step, candidate, value, theta_1, penalty, settings, n_obs, qp, nlp, scratch, backward):
+    """Step 3's penalty update (module doc; F quadratic: exact first- and second-order terms). Returns (F(w + p),
+    nu, D, phi_nu(w))."""
+    horizon = qp.linearization_inputs.shape[0]
+    value_full = objective(candidate, horizon, n_obs, qp.tracking_reference, qp.last_input, nlp, scratch.terms)
+    for i in range(w.shape[0]):
+        backward[i] = w[i] + -1.0 * step[i]  # w - p, computed as w + alpha p with alpha = -1
+    value_backward = objective(backward, horizon, n_obs, qp.tracking_reference, qp.last_input, nlp, scratch.terms)
+    gradient_step = 0.5 * (value_full - value_backward)
+    model_decrease = value_full - value
+    if theta_1 > 0.0:
+        required = model_decrease / ((1.0 - settings.descent_fraction) * theta_1)
+        if penalty < required:
+            penalty = required + settings.penalty_margin
+    derivative = gradient_step - penalty * theta_1
+    merit = value + penalty * theta_1
+    return value_full, penalty, derivative, merit
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _anderson_trial(record, oldest, stored, n_obs, frames, qp, nlp, scratch, accelerated):
+    """Step 4 (module doc): Anderson's point of the stored pairs, projected into the boxes, into ``accelerated``;
+    returns its (F, theta_1, theta_inf)."""
+    horizon = qp.linearization_inputs.shape[0]
+    anderson_point(record.iterates, record.images, oldest, stored, horizon, n_obs, qp.measured_state, nlp,
+                   accelerated)
+    value = objective(accelerated, horizon, n_obs, qp.tracking_reference, qp.last_input, nlp, scratch.terms)
+    theta_1, theta_inf = infeasibility(accelerated, horizon, n_obs, qp.measured_state, frames, nlp, scratch)
+    return value, theta_1, theta_inf
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_settings, workspace, memory,
          compact, scratch, record, w):
-    """The SQP of the module doc from the guess, on the QP subproblem's arrays ``qp`` (whose measured state,
-    last input and tracking reference are set). Leaves the last iterate in w; returns (status code,
-    iterations, line searches, F, theta_1, theta_inf, ||p||_inf, nu, accelerated steps)."""
-    measured_state, last_input, tracking_reference = qp.measured_state, qp.last_input, qp.tracking_reference
+    """The SQP of the module doc from the guess, steps 1-4 in order, on the QP subproblem's arrays ``qp`` (whose
+    measured state, last input and tracking reference are set). Leaves the last iterate in w; returns (status
+    code, iterations, line searches, F, theta_1, theta_inf, ||p||_inf, nu, accelerated steps)."""
     horizon = initial_inputs.shape[0]
     size = point_size(horizon, n_obs)
     candidate, step, trial, backward, accelerated = (np.empty(size), np.empty(size), np.empty(size),
                                                      np.empty(size), np.empty(size))
     frames = np.empty((horizon + 1, n_obs, 4))
     vehicle_frames(others, n_obs, frames)
-    initial_point(measured_state, frames, n_obs, initial_states, initial_inputs, nlp, scratch, w)
-    value = objective(w, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
-    theta_1, theta_inf = infeasibility(w, horizon, n_obs, measured_state, frames, nlp, scratch)
+    initial_point(qp.measured_state, frames, n_obs, initial_states, initial_inputs, nlp, scratch, w)
+    value = objective(w, horizon, n_obs, qp.tracking_reference, qp.last_input, nlp, scratch.terms)
+    theta_1, theta_inf = infeasibility(w, horizon, n_obs, qp.measured_state, frames, nlp, scratch)
     penalty, stationarity, status = 0.0, np.inf, _MAX_ITERATIONS
     iterations, line_searches, accelerated_steps = 0, 0, 0
     oldest, stored = 0, 0  # Anderson's pairs: the ring's oldest slot and the pairs it holds
     for _ in range(settings.max_iterations):
-        # 1. QP subproblem, linearized about w (screened rows), solved by the Riccati interior point
-        n_collision, n_safety = screen(w, horizon, n_obs, frames, nlp, scratch, qp.collision_rows, qp.safety_rows)
-        n_rows = linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, nlp, qp)
-        started = read_cycle_counter()
-        qp_status, qp_iterations, solution = solve_compact(qp, n_rows, measured_state, qp_settings, workspace,
-                                                           memory, compact)
-        record.qp_cycles[iterations] = read_cycle_counter() - started
-        record.qp_iterations[iterations] = qp_iterations
-        record.qp_rows[iterations] = n_rows
+        solved = _solve_subproblem(w, horizon, n_obs, frames, nlp, scratch, qp, qp_settings, workspace, memory,
+                                   compact, record, iterations, candidate)  # 1.
         iterations += 1
-        if qp_status != STATUS_SOLVED:
+        if not solved:
             status = _QP_FAILED
             break
-        if not qp_candidate(w, horizon, n_obs, solution, n_collision, n_safety, qp, candidate):
-            memory.valid[0] = False
-            status = _QP_FAILED
-            break
-        # 2. convergence (KKT): theta_inf at w and the step p = w_QP - w
-        stationarity = 0.0
-        for i in range(size):
-            step[i] = candidate[i] - w[i]
-            stationarity = max(stationarity, abs(step[i]))
+        stationarity = _step_norm(w, candidate, step)  # 2. convergence at w
         record.step_norms[iterations - 1] = stationarity
         if theta_inf <= settings.primal_tolerance and stationarity <= settings.stationarity_tolerance:
             status = _CONVERGED
             break
-        # 3. penalty update (F quadratic: exact first/second-order terms) and merit line search
-        value_full = objective(candidate, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
-        for i in range(size):
-            backward[i] = w[i] + -1.0 * step[i]  # w - p, computed as w + alpha p with alpha = -1
-        value_backward = objective(backward, horizon, n_obs, tracking_reference, last_input, nlp, scratch.terms)
-        gradient_step = 0.5 * (value_full - value_backward)
-        model_decrease = value_full - value
-        if theta_1 > 0.0:
-            required = model_decrease / ((1.0 - settings.descent_fraction) * theta_1)
-            if penalty < required:
-                penalty = required + settings.penalty_margin
-        derivative = gradient_step - penalty * theta_1
-        merit = value + penalty * theta_1
+        value_full, penalty, derivative, merit = _penalty_update(w, step, candidate, value, theta_1, penalty,
+                                                                 settings, n_obs, qp, nlp, scratch, backward)  # 3.
         accepted, alpha, trial_value, trial_theta_1, trial_theta_inf, trial_merit = _line_search(
             w, step, candidate, value_full, merit, derivative, penalty, settings, n_obs, frames, qp, nlp, scratch,
             trial)
@@ -341,27 +378,20 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
             status = _LINE_SEARCH_FAILED
             break
         if (alpha == 1.0 and trial_theta_inf <= settings.primal_tolerance
-                and stationarity <= settings.stationarity_tolerance):
+                and stationarity <= settings.stationarity_tolerance):  # 2. convergence at w + p
             w[:] = trial
             value, theta_1, theta_inf = trial_value, trial_theta_1, trial_theta_inf
             status = _CONVERGED
             break
-        # 4. Anderson acceleration of the full-step iteration: its point replaces the step if its merit is lower
-        if alpha < 1.0:
+        if alpha < 1.0:  # 4. Anderson's point replaces the full step if its merit is lower
             oldest, stored = 0, 0
         else:
             oldest, stored = _remember_pair(record.iterates, record.images, oldest, stored, w, candidate)
             if stored >= 2 and settings.anderson_depth > 0:
-                anderson_point(record.iterates, record.images, oldest, stored, horizon, n_obs, measured_state, nlp,
-                               accelerated)
-                accelerated_value = objective(accelerated, horizon, n_obs, tracking_reference, last_input, nlp,
-                                              scratch.terms)
-                accelerated_theta_1, accelerated_theta_inf = infeasibility(accelerated, horizon, n_obs,
-                                                                           measured_state, frames, nlp, scratch)
-                if accelerated_value + penalty * accelerated_theta_1 < trial_merit:
+                anderson = _anderson_trial(record, oldest, stored, n_obs, frames, qp, nlp, scratch, accelerated)
+                if anderson[0] + penalty * anderson[1] < trial_merit:
                     trial[:] = accelerated
-                    trial_value, trial_theta_1, trial_theta_inf = (accelerated_value, accelerated_theta_1,
-                                                                   accelerated_theta_inf)
+                    trial_value, trial_theta_1, trial_theta_inf = anderson
                     accelerated_steps += 1
         w[:] = trial
         value, theta_1, theta_inf = trial_value, trial_theta_1, trial_theta_inf
@@ -395,10 +425,10 @@ class NmpcSolver:
             np.asarray(weights.input, dtype=np.float64), np.asarray(weights.input_rate, dtype=np.float64),
             np.array([weights.collision_slack_linear, weights.collision_slack_quadratic, weights.safety_slack_linear,
                       weights.safety_slack_quadratic], dtype=np.float64),
-            np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_m_s[0]]),
-            np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_m_s[1]]),
-            np.array([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]]),
-            np.array([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]]),
+            np.array([-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_mps[0]]),
+            np.array([np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_mps[1]]),
+            np.array([config.steering_bounds_rad[0], config.acceleration_bounds_mps2[0]]),
+            np.array([config.steering_bounds_rad[1], config.acceleration_bounds_mps2[1]]),
             float(settings.screening_norm))
         qp = self.qp
         self._subproblem = Subproblem(

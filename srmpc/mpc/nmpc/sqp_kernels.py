@@ -43,7 +43,7 @@ _EPSILON = float(np.finfo(np.float64).eps)
 """Machine epsilon: numpy's ``lstsq(rcond=None)`` cuts singular values below eps max(rows, columns) s_max."""
 
 NlpConstants = namedtuple("NlpConstants", [
-    "model", "circle_offsets", "collision_semi_axes", "safety_semi_axes", "state_weight", "input_weight",
+    "model", "circle_offsets_m", "collision_semi_axes_m", "safety_semi_axes_m", "state_weight", "input_weight",
     "rate_weight", "slack_weights", "state_lower", "state_upper", "input_lower", "input_upper", "screening_norm"])
 """The NLP's constants: the bicycle's (h, substeps, l / 2, v_max, v_min), the circle offsets d_c (C,) and the
 ellipses' semi-axes (a, b), (a', b'); Q (4,), R (2,), S (2,), (w_col,1, w_col,2, w_safe,1, w_safe,2); the state
@@ -219,8 +219,8 @@ def next_state(state, control, model, current):
 @numba.njit(cache=True, error_model="numpy")
 def ellipse_norms(states, frames, n_obs, constants, collision, safety):
     """min_c g (collision) and min_c g' (safety) at x_1..N, (N, V_obs) each (``min_ellipse_norms``)."""
-    min_ellipse_norms(states, frames, n_obs, constants.circle_offsets, constants.collision_semi_axes, collision)
-    min_ellipse_norms(states, frames, n_obs, constants.circle_offsets, constants.safety_semi_axes, safety)
+    min_ellipse_norms(states, frames, n_obs, constants.circle_offsets_m, constants.collision_semi_axes_m, collision)
+    min_ellipse_norms(states, frames, n_obs, constants.circle_offsets_m, constants.safety_semi_axes_m, safety)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -359,10 +359,10 @@ def linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, const
         for j in range(n_rows):
             qp.sigma_upper[k, j] = 0.0 if j < n_collision else SAFETY_SLACK_UPPER
     if n_rows:
-        linearize_ellipse_rows(states, qp.row_frames, n_collision, constants.circle_offsets,
-                               constants.collision_semi_axes, qp.coefficients, qp.row_lower, qp.row_norms)
-        linearize_ellipse_rows(states, qp.row_frames[:, n_collision:], n_safety, constants.circle_offsets,
-                               constants.safety_semi_axes, qp.coefficients[:, n_collision:],
+        linearize_ellipse_rows(states, qp.row_frames, n_collision, constants.circle_offsets_m,
+                               constants.collision_semi_axes_m, qp.coefficients, qp.row_lower, qp.row_norms)
+        linearize_ellipse_rows(states, qp.row_frames[:, n_collision:], n_safety, constants.circle_offsets_m,
+                               constants.safety_semi_axes_m, qp.coefficients[:, n_collision:],
                                qp.row_lower[:, n_collision:], qp.row_norms)
     return n_rows
 

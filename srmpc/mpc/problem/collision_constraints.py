@@ -73,14 +73,85 @@ def _direction_normal(dx, dy, now_dx, now_dy, heading, semi_major, semi_minor, o
     _ellipse_normal(-np.cos(heading), -np.sin(heading), heading, semi_major, semi_minor, out)
 
 
+@numba.njit(inline="always")
+def closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h, circle_offsets_m, a, b):
+    """(g, c*, longitudinal, lateral) of the ego circle c* = argmin_c g(p_c(x)) (module doc) in the ellipse (a, b)
+    of the vehicle at (ox, oy) with heading (cos_h, sin_h): its norm, its index and its centre's offset from the
+    vehicle's in the vehicle's frame [m]. The ego is at (px, py) [m] with heading (cos_psi, sin_psi)."""
+    best_norm, best, best_l, best_t = np.inf, 0, 0.0, 0.0
+    for c in range(circle_offsets_m.shape[0]):
+        d = circle_offsets_m[c]
+        dx = px + d * cos_psi - ox
+        dy = py + d * sin_psi - oy
+        longitudinal = cos_h * dx + sin_h * dy
+        lateral = -sin_h * dx + cos_h * dy
+        norm = np.sqrt((longitudinal / a) ** 2 + (lateral / b) ** 2)
+        if norm < best_norm:
+            best_norm, best, best_l, best_t = norm, c, longitudinal, lateral
+    return best_norm, best, best_l, best_t
+
+
+@numba.njit(cache=True, inline="always")
+def _empty_row(k, j, coefficients, row_lower, safety_slack_upper, critical_circle):
+    """An empty slot's row: zero coefficients and bounds, s_j + sigma_kj >= 0."""
+    coefficients[k, j, 0] = 0.0
+    coefficients[k, j, 1] = 0.0
+    coefficients[k, j, 2] = 0.0
+    row_lower[k, j] = 0.0
+    safety_slack_upper[k, j] = 0.0
+    critical_circle[k, j] = 0
+
+
+@numba.njit(cache=True, inline="always")
+def _vehicle_row(k, j, ego_states, predicted_others, circle_offsets_m, collision_semi_axes_m, safety_semi_axes_m,
+                 normal, coefficients, row_lower, safety_slack_upper, critical_circle):
+    """Row (k, j) for an observed vehicle (module doc): the critical circle c*, the normal n of the collision
+    ellipse's supporting half-plane at p_{c*}(x^r_{k+1}), E''s support h'(n), and the merged row
+    n^T J_p x + s_j + sigma_kj >= h'(n) - n^T (p(x^r) - c) + n^T J_p x^r with 0 <= sigma_kj <= h'(n) - 1."""
+    a = collision_semi_axes_m[0]
+    b = collision_semi_axes_m[1]
+    stage = k + 1
+    px = ego_states[stage, 0]
+    py = ego_states[stage, 1]
+    psi = ego_states[stage, 2]
+    cos_psi = np.cos(psi)
+    sin_psi = np.sin(psi)
+    ox = predicted_others[stage, j, 0]
+    oy = predicted_others[stage, j, 1]
+    heading = predicted_others[stage, j, 2]
+    cos_h = np.cos(heading)
+    sin_h = np.sin(heading)
+    best = closest_circle(px, py, cos_psi, sin_psi, ox, oy, cos_h, sin_h, circle_offsets_m, a, b)[1]
+    d = circle_offsets_m[best]
+    cx = px + d * cos_psi
+    cy = py + d * sin_psi
+    now_dx = ego_states[0, 0] + d - predicted_others[0, j, 0]
+    now_dy = ego_states[0, 1] - predicted_others[0, j, 1]
+    _direction_normal(cx - ox, cy - oy, now_dx, now_dy, heading, a, b, normal)
+    c_x = normal[0]
+    c_y = normal[1]
+    c_psi = d * (-normal[0] * sin_psi + normal[1] * cos_psi)
+    normal_longitudinal = cos_h * normal[0] + sin_h * normal[1]
+    normal_lateral = -sin_h * normal[0] + cos_h * normal[1]
+    safety_support = np.sqrt((safety_semi_axes_m[0] * normal_longitudinal) ** 2
+                             + (safety_semi_axes_m[1] * normal_lateral) ** 2)
+    coefficients[k, j, 0] = c_x
+    coefficients[k, j, 1] = c_y
+    coefficients[k, j, 2] = c_psi
+    row_lower[k, j] = (safety_support - (normal[0] * (cx - ox) + normal[1] * (cy - oy))
+                       + c_x * px + c_y * py + c_psi * psi)
+    safety_slack_upper[k, j] = max(safety_support - 1.0, 0.0)
+    critical_circle[k, j] = best
+
+
 @numba.njit(cache=True)
 def linearize_collision_constraints(
     ego_states,
     predicted_others,
     n_valid_others,
-    circle_offsets,
-    collision_semi_axes,
-    safety_semi_axes,
+    circle_offsets_m,
+    collision_semi_axes_m,
+    safety_semi_axes_m,
     coefficients,
     row_lower,
     safety_slack_upper,
@@ -92,8 +163,8 @@ def linearize_collision_constraints(
         ego_states: (N + 1, 4) linearization states x^r_k (stage 0 = measured state).
         predicted_others: (N + 1, V_obs, 4) predicted other vehicles, V_obs <= V.
         n_valid_others: number of observed vehicles (slots >= it are empty).
-        circle_offsets: (C,) circle offsets d_c [m].
-        collision_semi_axes, safety_semi_axes: (2,) arrays (a, b), (a', b') [m].
+        circle_offsets_m: (C,) circle offsets d_c [m].
+        collision_semi_axes_m, safety_semi_axes_m: (2,) arrays (a, b), (a', b') [m].
         coefficients: out (N, V, 3) coefficients on (x, y, psi) of x_k.
         row_lower: out (N, V) row lower bounds (slacks enter with coefficient 1).
         safety_slack_upper: out (N, V) upper bounds h'(n) - 1 of the safety slacks.
@@ -101,67 +172,15 @@ def linearize_collision_constraints(
 
     Empty slots get zero coefficients and zero bounds, i.e. the row reads s_j + sigma_kj >= 0.
     """
-    horizon = coefficients.shape[0]
-    n_slots = coefficients.shape[1]
-    n_circles = circle_offsets.shape[0]
-    a = collision_semi_axes[0]
-    b = collision_semi_axes[1]
-    a_safe = safety_semi_axes[0]
-    b_safe = safety_semi_axes[1]
     normal = np.empty(2)
-    ego_now_x = ego_states[0, 0]
-    ego_now_y = ego_states[0, 1]
-    for k in range(horizon):
-        stage = k + 1
-        px = ego_states[stage, 0]
-        py = ego_states[stage, 1]
-        psi = ego_states[stage, 2]
-        cos_psi = np.cos(psi)
-        sin_psi = np.sin(psi)
-        for j in range(n_slots):
+    for k in range(coefficients.shape[0]):
+        for j in range(coefficients.shape[1]):
             if j >= n_valid_others:
-                coefficients[k, j, 0] = 0.0
-                coefficients[k, j, 1] = 0.0
-                coefficients[k, j, 2] = 0.0
-                row_lower[k, j] = 0.0
-                safety_slack_upper[k, j] = 0.0
-                critical_circle[k, j] = 0
-                continue
-            ox = predicted_others[stage, j, 0]
-            oy = predicted_others[stage, j, 1]
-            heading = predicted_others[stage, j, 2]
-            cos_h = np.cos(heading)
-            sin_h = np.sin(heading)
-            best = 0
-            best_norm = np.inf
-            for c in range(n_circles):
-                dx = px + circle_offsets[c] * cos_psi - ox
-                dy = py + circle_offsets[c] * sin_psi - oy
-                norm = np.sqrt(((cos_h * dx + sin_h * dy) / a) ** 2
-                               + ((-sin_h * dx + cos_h * dy) / b) ** 2)
-                if norm < best_norm:
-                    best_norm = norm
-                    best = c
-            d = circle_offsets[best]
-            cx = px + d * cos_psi
-            cy = py + d * sin_psi
-            now_dx = ego_now_x + d - predicted_others[0, j, 0]
-            now_dy = ego_now_y - predicted_others[0, j, 1]
-            _direction_normal(cx - ox, cy - oy, now_dx, now_dy, heading, a, b, normal)
-            c_x = normal[0]
-            c_y = normal[1]
-            c_psi = d * (-normal[0] * sin_psi + normal[1] * cos_psi)
-            normal_longitudinal = cos_h * normal[0] + sin_h * normal[1]
-            normal_lateral = -sin_h * normal[0] + cos_h * normal[1]
-            safety_support = np.sqrt((a_safe * normal_longitudinal) ** 2
-                                     + (b_safe * normal_lateral) ** 2)
-            coefficients[k, j, 0] = c_x
-            coefficients[k, j, 1] = c_y
-            coefficients[k, j, 2] = c_psi
-            row_lower[k, j] = (safety_support - (normal[0] * (cx - ox) + normal[1] * (cy - oy))
-                               + c_x * px + c_y * py + c_psi * psi)
-            safety_slack_upper[k, j] = max(safety_support - 1.0, 0.0)
-            critical_circle[k, j] = best
+                _empty_row(k, j, coefficients, row_lower, safety_slack_upper, critical_circle)
+            else:
+                _vehicle_row(k, j, ego_states, predicted_others, circle_offsets_m, collision_semi_axes_m,
+                             safety_semi_axes_m, normal, coefficients, row_lower, safety_slack_upper,
+                             critical_circle)
 
 
 def collision_norms(

@@ -53,8 +53,8 @@ def nonlinear_plan_cost(
     lateral, speed = states[1:, 1], states[1:, 3]
     bound_violation = (np.maximum(config.lateral_bounds_m[0] - lateral, 0.0)
                        + np.maximum(lateral - config.lateral_bounds_m[1], 0.0)
-                       + np.maximum(config.speed_bounds_m_s[0] - speed, 0.0)
-                       + np.maximum(speed - config.speed_bounds_m_s[1], 0.0))
+                       + np.maximum(config.speed_bounds_mps[0] - speed, 0.0)
+                       + np.maximum(speed - config.speed_bounds_mps[1], 0.0))
     cost += _penalty(bound_violation, weights.collision_slack_linear, weights.collision_slack_quadratic)
 
     predicted_others = np.asarray(predicted_others, dtype=np.float64)

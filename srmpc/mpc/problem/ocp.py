@@ -26,7 +26,7 @@ import numpy as np
 
 from srmpc.mpc.problem.vehicle_model import (
     CONTROL_PERIOD_S,
-    MAX_SPEED_M_S,
+    MAX_SPEED_MPS,
     VEHICLE_LENGTH_M,
     VEHICLE_WIDTH_M,
     BicycleParameters,
@@ -43,7 +43,7 @@ ROAD_RIGHT_EDGE_M = float(RIGHT_ROAD_EDGE)
 """Right road edge [m]."""
 REFERENCE_LATERAL_POSITION_M = LANE_CENTRES_M[-1]
 """Right-lane centre, the tracking target [m]."""
-REFERENCE_SPEED_M_S = 25.0
+REFERENCE_SPEED_MPS = 25.0
 """Reference speed v_ref [m/s]."""
 
 MAX_HORIZON_STEPS = 400
@@ -144,9 +144,9 @@ class OcpConfig:
     Attributes:
         horizon: N, number of control intervals (N = 25 at 0.2 s gives 5 s).
         max_vehicles: V, number of other-vehicle slots (fewer observed: empty slots).
-        steering_bounds_rad, acceleration_bounds_m_s2: input boxes.
+        steering_bounds_rad, acceleration_bounds_mps2: input boxes.
         lateral_bounds_m: bounds on the ego centre's y [m] (road edges minus half the width).
-        speed_bounds_m_s: bounds on v [m/s].
+        speed_bounds_mps: bounds on v [m/s].
         weights: objective weights.
         geometry: collision geometry.
         bicycle: discrete model parameters (control period, sub-steps, length).
@@ -155,10 +155,10 @@ class OcpConfig:
     horizon: int = 25
     max_vehicles: int = 6
     steering_bounds_rad: tuple[float, float] = (-0.1, 0.1)
-    acceleration_bounds_m_s2: tuple[float, float] = (-5.0, 5.0)
+    acceleration_bounds_mps2: tuple[float, float] = (-5.0, 5.0)
     lateral_bounds_m: tuple[float, float] = (ROAD_LEFT_EDGE_M + VEHICLE_WIDTH_M / 2.0,
                                              ROAD_RIGHT_EDGE_M - VEHICLE_WIDTH_M / 2.0)
-    speed_bounds_m_s: tuple[float, float] = (0.0, MAX_SPEED_M_S)
+    speed_bounds_mps: tuple[float, float] = (0.0, MAX_SPEED_MPS)
     weights: TrackingWeights = field(default_factory=TrackingWeights)
     geometry: CollisionGeometry = field(default_factory=CollisionGeometry)
     bicycle: BicycleParameters = field(default_factory=BicycleParameters)
@@ -171,7 +171,7 @@ class OcpConfig:
 def lane_keeping_tracking_reference(
     horizon: int,
     lateral_position_m: float = REFERENCE_LATERAL_POSITION_M,
-    speed_m_s: float = REFERENCE_SPEED_M_S,
+    speed_mps: float = REFERENCE_SPEED_MPS,
     ego_longitudinal_position_m: float = 0.0,
     control_period_s: float = CONTROL_PERIOD_S,
 ) -> np.ndarray:
@@ -181,10 +181,10 @@ def lane_keeping_tracking_reference(
     """
     k = np.arange(horizon + 1)
     reference = np.empty((horizon + 1, 4))
-    reference[:, 0] = ego_longitudinal_position_m + speed_m_s * control_period_s * k
+    reference[:, 0] = ego_longitudinal_position_m + speed_mps * control_period_s * k
     reference[:, 1] = lateral_position_m
     reference[:, 2] = 0.0
-    reference[:, 3] = speed_m_s
+    reference[:, 3] = speed_mps
     return reference
 
 

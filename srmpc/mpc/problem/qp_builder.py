@@ -39,6 +39,7 @@ import scipy.sparse as sp
 
 from srmpc.mpc.problem.collision_constraints import linearize_collision_constraints
 from srmpc.mpc.problem.ocp import OcpConfig
+from srmpc.mpc.problem.step_data import OcpStepData
 from srmpc.mpc.problem.vehicle_model import INPUT_DIM, LATERAL_INDEX, SPEED_INDEX, STATE_DIM, KinematicBicycle
 
 
@@ -189,12 +190,12 @@ def _box_bounds(config: OcpConfig, layout: VariableLayout) -> tuple[np.ndarray, 
     variable_upper = np.full(n, np.inf)
     variable_lower[state_idx[1:, LATERAL_INDEX]] = config.lateral_bounds_m[0]
     variable_upper[state_idx[1:, LATERAL_INDEX]] = config.lateral_bounds_m[1]
-    variable_lower[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_m_s[0]
-    variable_upper[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_m_s[1]
+    variable_lower[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_mps[0]
+    variable_upper[state_idx[1:, SPEED_INDEX]] = config.speed_bounds_mps[1]
     variable_lower[input_idx[:, 0]] = config.steering_bounds_rad[0]
     variable_upper[input_idx[:, 0]] = config.steering_bounds_rad[1]
-    variable_lower[input_idx[:, 1]] = config.acceleration_bounds_m_s2[0]
-    variable_upper[input_idx[:, 1]] = config.acceleration_bounds_m_s2[1]
+    variable_lower[input_idx[:, 1]] = config.acceleration_bounds_mps2[0]
+    variable_upper[input_idx[:, 1]] = config.acceleration_bounds_mps2[1]
     variable_lower[layout.collision_slack_indices()] = 0.0
     variable_lower[safe_slack_idx] = 0.0
     variable_upper[safe_slack_idx] = 0.0  # set per step to h'(n) - 1
@@ -326,9 +327,9 @@ class LtvMpcQp:
         variable_lower (constant), variable_upper,
         general_matrix (A), general_lower (l), general_upper (u).
 
-    Stage-wise data (overwritten in place by ``update``, or directly by the compiled planner step and the
-    NMPC, which then call ``stagewise_data_changed``; what structure-exploiting solvers read, see
-    ``srmpc.mpc.solvers.interior_point``):
+    Stage-wise data (overwritten in place by ``update`` from an ``OcpStepData``, or directly by the compiled
+    planner step and the NMPC, which then call ``stagewise_data_changed``; what structure-exploiting solvers
+    read, see ``srmpc.mpc.solvers.interior_point``):
         measured_state x_hat (4,), last_input u_hat (2,), tracking_reference x^ref (N + 1, 4),
         linearization_inputs u^r (N, 2), state_matrices A_k (N, 4, 4),
         input_matrices B_k (N, 4, 2), affine_offsets c_k (N, 4), next_states f(x^r_k, u^r_k),
@@ -340,9 +341,9 @@ class LtvMpcQp:
         self.config = config
         self.model = model or KinematicBicycle(config.bicycle)
         geometry = config.geometry
-        self.circle_offsets = np.asarray(geometry.circle_offsets_m, dtype=np.float64)
-        self.collision_semi_axes = np.asarray(geometry.collision_semi_axes_m)
-        self.safety_semi_axes = np.asarray(geometry.safety_semi_axes_m)
+        self.circle_offsets_m = np.asarray(geometry.circle_offsets_m, dtype=np.float64)
+        self.collision_semi_axes_m = np.asarray(geometry.collision_semi_axes_m)
+        self.safety_semi_axes_m = np.asarray(geometry.safety_semi_axes_m)
         layout = VariableLayout.build(config.horizon, config.max_vehicles)
         self.layout = layout
         self._state_idx = layout.state_indices()
@@ -394,29 +395,15 @@ class LtvMpcQp:
     def n_variables(self) -> int:
         return self.layout.n_variables
 
-    def update(
-        self,
-        measured_state: np.ndarray,
-        linearization_states: np.ndarray,
-        linearization_inputs: np.ndarray,
-        tracking_reference: np.ndarray,
-        last_input: np.ndarray,
-        predicted_others: np.ndarray,
-    ) -> None:
-        """Overwrite the QP's values for one MPC step.
-
-        Args:
-            measured_state: x_hat (4,).
-            linearization_states: (N + 1, 4) x^r_k (stage 0 should be x_hat).
-            linearization_inputs: (N, 2) u^r_k.
-            tracking_reference: (N + 1, 4) x^ref_k (stage 0 unused).
-            last_input: u_hat (2,), the previously applied input.
-            predicted_others: (N + 1, V_obs, 4) with V_obs <= V.
-        """
-        lin_states = np.ascontiguousarray(linearization_states, dtype=np.float64)
-        lin_inputs = np.ascontiguousarray(linearization_inputs, dtype=np.float64)
+    def update(self, step: OcpStepData) -> None:
+        """Overwrite the QP's values for one MPC step from its data (``OcpStepData``: x_hat, x^r, u^r, x^ref,
+        u_hat and the predicted others, V_obs <= V)."""
+        if step.horizon != self.config.horizon:
+            raise ValueError(f"the step's horizon {step.horizon} is not the QP's N={self.config.horizon}")
+        lin_states, lin_inputs = step.linearization_states, step.linearization_inputs
         self.model.linearize(lin_states, lin_inputs, self.next_states, self.state_matrices,
                              self.input_matrices, self.affine_offsets)
+        predicted_others = step.predicted_others
         if predicted_others.shape[1] > self.config.max_vehicles:
             raise ValueError(
                 f"{predicted_others.shape[1]} vehicles exceed max_vehicles="
@@ -425,14 +412,14 @@ class LtvMpcQp:
         if n_observed == 0:
             predicted_others = self._empty_prediction
         linearize_collision_constraints(
-            lin_states, np.ascontiguousarray(predicted_others, dtype=np.float64), n_observed,
-            self.circle_offsets, self.collision_semi_axes, self.safety_semi_axes,
+            lin_states, predicted_others, n_observed,
+            self.circle_offsets_m, self.collision_semi_axes_m, self.safety_semi_axes_m,
             self.collision_coefficients, self.collision_row_lower, self.safety_slack_upper,
             self.critical_circle)
         self.n_observed = n_observed
-        self.measured_state[:] = measured_state
-        self.last_input[:] = last_input
-        self.tracking_reference[:] = tracking_reference
+        self.measured_state[:] = step.measured_state
+        self.last_input[:] = step.last_input
+        self.tracking_reference[:] = step.tracking_reference
         self.linearization_inputs[:] = lin_inputs
         self._sparse_values_stale = True
 

@@ -47,9 +47,9 @@ VEHICLE_LENGTH_M = VEHICLE_LENGTH
 """Ego length [m] (the scenario's, highway-env ``Vehicle.LENGTH``)."""
 VEHICLE_WIDTH_M = VEHICLE_WIDTH
 """Ego width [m]."""
-MAX_SPEED_M_S = MAX_SPEED
+MAX_SPEED_MPS = MAX_SPEED
 """Speed above which the plant clips acceleration [m/s]."""
-MIN_SPEED_M_S = -MAX_SPEED
+MIN_SPEED_MPS = -MAX_SPEED
 """Speed below which the plant clips acceleration [m/s] (highway-env: -MAX_SPEED)."""
 CONTROL_PERIOD_S = 0.2
 """Control period dt [s] (policy frequency 5 Hz)."""
@@ -65,15 +65,15 @@ class BicycleParameters:
         length_m: vehicle length l [m]; the rear axle-to-centre distance is l / 2.
         control_period_s: duration dt [s] for which one input is held.
         n_substeps: explicit-Euler sub-steps per control period (each dt / n_substeps [s]).
-        max_speed_m_s: speed above which the acceleration is clipped [m/s].
-        min_speed_m_s: speed below which the acceleration is clipped [m/s].
+        max_speed_mps: speed above which the acceleration is clipped [m/s].
+        min_speed_mps: speed below which the acceleration is clipped [m/s].
     """
 
     length_m: float = VEHICLE_LENGTH_M
     control_period_s: float = CONTROL_PERIOD_S
     n_substeps: int = SUBSTEPS_PER_CONTROL
-    max_speed_m_s: float = MAX_SPEED_M_S
-    min_speed_m_s: float = MIN_SPEED_M_S
+    max_speed_mps: float = MAX_SPEED_MPS
+    min_speed_mps: float = MIN_SPEED_MPS
 
     @property
     def substep_s(self) -> float:
@@ -220,8 +220,8 @@ class KinematicBicycle:
     def __init__(self, parameters: BicycleParameters | None = None) -> None:
         self.parameters = parameters or BicycleParameters()
         p = self.parameters
-        self.kernel_args = (p.substep_s, p.n_substeps, p.length_m / 2.0, p.max_speed_m_s,
-                            p.min_speed_m_s)
+        self.kernel_args = (p.substep_s, p.n_substeps, p.length_m / 2.0, p.max_speed_mps,
+                            p.min_speed_mps)
         """The compiled kernels' model arguments (h, n_substeps, l / 2, v_max, v_min) (``linearize_horizon``,
         ``rollout_horizon``)."""
 

@@ -276,9 +276,9 @@ class RiccatiInteriorPointSolver:
             2.0 * np.asarray(weights.input_rate, dtype=np.float64),
             np.array([weights.collision_slack_linear, weights.collision_slack_quadratic,
                       weights.safety_slack_linear, weights.safety_slack_quadratic], dtype=np.float64),
-            np.array([*config.lateral_bounds_m, *config.speed_bounds_m_s,
-                      config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0],
-                      config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]],
+            np.array([*config.lateral_bounds_m, *config.speed_bounds_mps,
+                      config.steering_bounds_rad[0], config.acceleration_bounds_mps2[0],
+                      config.steering_bounds_rad[1], config.acceleration_bounds_mps2[1]],
                      dtype=np.float64))
         self.workspace = allocate_workspace(horizon, n_slots)
         self.memory = allocate_memory(horizon, n_slots, self.workspace[1].t.shape[0])

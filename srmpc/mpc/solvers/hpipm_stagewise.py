@@ -125,10 +125,10 @@ class StagewiseQp:
         two_q = 2.0 * np.asarray(weights.state, dtype=np.float64)
         two_r = 2.0 * np.asarray(weights.input, dtype=np.float64)
         two_s = 2.0 * np.asarray(weights.input_rate, dtype=np.float64)
-        input_lower = np.array([config.steering_bounds_rad[0], config.acceleration_bounds_m_s2[0]])
-        input_upper = np.array([config.steering_bounds_rad[1], config.acceleration_bounds_m_s2[1]])
-        state_lower = np.array([config.lateral_bounds_m[0], config.speed_bounds_m_s[0]])
-        state_upper = np.array([config.lateral_bounds_m[1], config.speed_bounds_m_s[1]])
+        input_lower = np.array([config.steering_bounds_rad[0], config.acceleration_bounds_mps2[0]])
+        input_upper = np.array([config.steering_bounds_rad[1], config.acceleration_bounds_mps2[1]])
+        state_lower = np.array([config.lateral_bounds_m[0], config.speed_bounds_mps[0]])
+        state_upper = np.array([config.lateral_bounds_m[1], config.speed_bounds_mps[1]])
         a_mats, b_mats, offsets = qp.state_matrices, qp.input_matrices, qp.affine_offsets
         normals, row_lower = qp.collision_coefficients[:, :m], qp.collision_row_lower[:, :m]
         sigma_upper = qp.safety_slack_upper[:, :m]
