@@ -40,9 +40,9 @@ RESULTS_VIEW, METRICS_VIEW = "results", "metrics"
 """Share keys of the two runs-table views every experiment carries (see :data:`EXPERIMENT_TAGS`)."""
 RUNS_TABLE_COLUMNS = [f"tags.`{tag}`" for tag in ("method", "traffic")] + [
     f"metrics.`{metric}`" for metric in ("mean_event_cost", "mean_vx", "cost_rate", "mean_return", "mean_n_steps")
-] + [f"tags.`{tag}`" for tag in ("planner", "simulator", "seed")]
+] + [f"tags.`{tag}`" for tag in ("experiment", "simulator", "seed")]
 """The views' columns, left to right: the run's method and traffic, then J_c, v_x, rho_c, J_r, n_steps, then
-its planner, simulator and seed (MLflow shows no metric by default). The list is both the views'
+its experiment, simulator and seed (MLflow shows no metric by default). The list is both the views'
 ``selectedColumns`` (which columns) and ``columnOrder`` (their order: without it the grid lists the
 metric columns alphabetically and the tag columns after them); MLflow 3.17's runs table applies
 ``columnOrder`` (ag-grid column ids, the same ``tags.`x```/``metrics.`x``` keys) to the columns it shows."""

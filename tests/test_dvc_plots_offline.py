@@ -155,13 +155,18 @@ def test_dvc_plots_show_draws_every_plot_with_no_network(tmp_path):
         assert plot["embedded"] and plot["canvas"] and min(plot["canvas"]) > 200, plot
         assert plot["ink"] > 5_000, f"{plot['id']}: its canvas is (nearly) blank: {plot['ink']} pixels drawn"
         assert ["text", "title-text", 1] in plot["marks"], f"{plot['id']}: no title"
-        expected = [_rows(path, column) for path, column in spec["y"].items()]
-        kind = {"smooth": "line", "scatter": "symbol"}[spec["template"]]
-        if kind == "line":  # one line per training run (raw and smoothed), a point per row of its metrics.csv
+        if spec["template"] == "training_curves":  # per series, one line per run, raw and its running mean
+            ((path, _),) = spec["y"].items()
+            with (ROOT / path).open() as handle:
+                runs = Counter((row["agent"], row["seed"], row["series"]) for row in csv.DictReader(handle))
+            assert len(runs) == 13 * 3 and min(runs.values()) > 100  # PPO, PPO-L-SI, SB3, PPO-L-RSS x 3 seeds + 1
             lines = Counter(n for marktype, _, n in plot["marks"] if marktype == "line")
-            assert all(lines[n] >= k for n, k in Counter(expected).items()), (plot["id"], lines, expected)
-            assert len(spec["y"]) == 12 and min(expected) > 100  # PPO, PPO-L-SI, SB3 PPO, PPO-L-RSS x seeds 0-2
-        else:  # one symbol per episode of every method
+            expected = Counter()
+            for points in runs.values():
+                expected[points] += 2
+            assert all(lines[n] >= k for n, k in expected.items()), (plot["id"], lines, expected)
+        else:  # scatter: one symbol per episode of every method
+            expected = [_rows(path, column) for path, column in spec["y"].items()]
             symbols = [n for marktype, role, n in plot["marks"] if marktype == "symbol" and role == "mark"]
             assert symbols == [sum(expected)], (plot["id"], symbols, expected)
     assert screenshot.stat().st_size > 50_000
