@@ -1,7 +1,7 @@
 """dvc.yaml reads in one pass: short commands, runs defined in conf/, and the committed results are theirs.
 
 - every command, as written and as DVC renders it (``dvc.lock``), is at most 200 characters;
-- the file is under 300 lines (125 stages);
+- the file is at most 250 lines (125 stages);
 - every published experiment (conf/experiment/<question>/<name>.yaml) is a cell of stage ``evaluate`` in both
   traffic levels, and each cell's folder holds the config its experiment composes to, byte for byte;
 - every stage of ``dvc.yaml`` is in ``dvc.lock`` with the command it renders to there, so the lock describes
@@ -48,7 +48,7 @@ def test_every_command_is_short_as_written_and_as_rendered():
 
 
 def test_the_file_reads_in_one_pass():
-    assert len((ROOT / "dvc.yaml").read_text().splitlines()) < 300
+    assert len((ROOT / "dvc.yaml").read_text().splitlines()) <= 250
 
 
 def test_every_stage_is_locked_with_its_command():
