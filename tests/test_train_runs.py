@@ -55,7 +55,8 @@ def test_side_by_side_runs_create_one_mlflow_store_without_a_race(tmp_path):
                 f"tracking.artifact_location={tmp_path / 'mlruns'} tracking.experiment_name=train-runs-test")
     runs = [_toy(tmp_path, name, seed, tracking) for name, seed in (("a", 0), ("b", 1), ("c", 2))]
     result = _train_runs(tmp_path, *runs, jobs=3)
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    errors = [line for line in result.stdout.splitlines() if "error" in line.lower() or "Traceback" in line]
+    assert result.returncode == 0, "\n".join(errors)[-3000:] + result.stdout[-1500:] + result.stderr[-1500:]
     import mlflow
 
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
