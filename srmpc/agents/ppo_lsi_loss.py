@@ -65,6 +65,39 @@ def pearson(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return torch.where(denominator > 0, (x * y).sum() / denominator.clamp_min(1e-30), torch.zeros_like(denominator))
 
 
+ROW_BLOCK = 256
+"""The critics' input rows in the GAE are padded to a multiple of this (see :func:`critic_inputs`)."""
+
+
+def critic_inputs(observation: torch.Tensor, next_observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The states a critic must see for v(s_t) and v(s_{t+1}) of a (B, T) batch, each once.
+
+    Returns ``rows``: the B T observations, then the next observations that are not the next
+    row's observation (bitwise), then zero rows up to a multiple of :data:`ROW_BLOCK`; and
+    ``elsewhere`` (B, T) bool marking those next observations: every last step, and the steps where
+    the episode ended (the next observation is the terminal one, the next row the new episode's
+    first). The padding is there because a matrix product's last M mod 4 rows go through another
+    kernel (MKL's sgemm on this CPU: they can differ in the last bit from the same row inside a
+    block), while the GAE modules' products (M = 2 B T) have no such tail.
+    """
+    elsewhere = torch.ones(next_observation.shape[:-1], dtype=torch.bool)
+    elsewhere[:, :-1] = (next_observation[:, :-1] != observation[:, 1:]).any(-1)
+    extra = next_observation[elsewhere]
+    padding = extra.new_zeros((-(elsewhere.numel() + extra.shape[0]) % ROW_BLOCK, extra.shape[-1]))
+    rows = torch.cat([observation.reshape(-1, observation.shape[-1]), extra, padding])
+    return rows, elsewhere
+
+
+def split_values(values: torch.Tensor, shape: torch.Size, elsewhere: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(v(s_t), v(s_{t+1})), each (B, T, 1), from a critic's output on :func:`critic_inputs`' rows."""
+    count = shape.numel()
+    value = values[:count].reshape(*shape, -1)
+    next_value = torch.empty_like(value)
+    next_value[:, :-1] = value[:, 1:]
+    next_value[elsewhere] = values[count:count + int(elsewhere.sum())]
+    return value, next_value
+
+
 class PPOLSILoss(ClipPPOLoss):
     """Clipped PPO (``constrained=False``) or PPO-L-SI (``constrained=True``).
 
@@ -149,15 +182,19 @@ class PPOLSILoss(ClipPPOLoss):
         """Write advantage / value_target (reward GAE) and, if constrained, the cost ones, in place.
 
         The same floats as calling TorchRL's ``GAE`` modules (``self.value_estimator``,
-        ``self.cost_value_estimator``) on the (B, T) batch, without their TensorDict plumbing: each
-        critic runs once on s_t and once on s_{t+1} (the GAE modules stack both and run it under
-        ``vmap``, row for row the same matrix products), and TorchRL's own
-        ``generalized_advantage_estimate`` runs the recursion over t
-        (A_t = delta_t + gamma lambda (1 - done_t) A_{t+1}, delta_t = r_t + gamma (1 - terminated_t)
-        v(s_{t+1}) - v(s_t)) with the modules' own gamma and lambda.
+        ``self.cost_value_estimator``) on the (B, T) batch, without their TensorDict plumbing and
+        without evaluating a critic twice on one state: v(s_{t+1}) is v(s_{t+1}) of the next row of
+        the batch wherever the next observation is that row's observation (bit for bit), and each
+        critic runs once on the observations plus the other next observations (at the batch's last
+        step and where an episode ended; :func:`critic_inputs`). A matrix product's row does not
+        depend on the other rows, so these values are those of the GAE modules, which run each
+        critic on all of s_t and all of s_{t+1}. TorchRL's own ``generalized_advantage_estimate``
+        then runs the recursion over t (A_t = delta_t + gamma lambda (1 - done_t) A_{t+1},
+        delta_t = r_t + gamma (1 - terminated_t) v(s_{t+1}) - v(s_t)) with the modules' gamma and lambda.
         """
         nxt = batch.get("next")
         observation, next_observation = batch.get(OBSERVATION_KEY), nxt.get(OBSERVATION_KEY)
+        rows, elsewhere = critic_inputs(observation, next_observation)
         done, terminated = nxt.get("done"), nxt.get("terminated")
         estimators = [(self.value_estimator, self.critic_network, "reward", VALUE_KEY, self.tensor_keys.advantage,
                        self.tensor_keys.value_target)]
@@ -165,7 +202,7 @@ class PPOLSILoss(ClipPPOLoss):
             estimators.append((self.cost_value_estimator, self.cost_critic_network, COST_KEY, COST_VALUE_KEY,
                                COST_ADVANTAGE_KEY, COST_VALUE_TARGET_KEY))
         for estimator, critic, reward_key, value_key, advantage_key, target_key in estimators:
-            value, next_value = critic.module(observation), critic.module(next_observation)
+            value, next_value = split_values(critic.module(rows), observation.shape[:-1], elsewhere)
             advantage, value_target = generalized_advantage_estimate(
                 estimator.gamma, estimator.lmbda, value, next_value, nxt.get(reward_key), done=done,
                 terminated=terminated, time_dim=batch.ndim - 1)

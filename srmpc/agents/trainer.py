@@ -247,11 +247,12 @@ class Trainer:
         self.loss = build_loss(self.observation_dim, self.action_low, self.action_high, hp)
         groups = parameter_groups(self.loss)
         self.optimizers = {
-            "actor": torch.optim.Adam(groups["actor"], lr=hp.actor_lr, eps=1e-5),
-            "critic": torch.optim.Adam(groups["critic"], lr=hp.critic_lr, eps=1e-5),
+            "actor": torch.optim.Adam(groups["actor"], lr=hp.actor_lr, eps=1e-5, foreach=True),
+            "critic": torch.optim.Adam(groups["critic"], lr=hp.critic_lr, eps=1e-5, foreach=True),
         }
         if hp.constrained:
-            self.optimizers["multiplier"] = torch.optim.Adam(groups["multiplier"], lr=hp.multiplier_lr, eps=1e-5)
+            self.optimizers["multiplier"] = torch.optim.Adam(groups["multiplier"], lr=hp.multiplier_lr, eps=1e-5,
+                                                             foreach=True)
         self.groups = groups
         self.shuffle = torch.Generator().manual_seed(hp.seed)
         self.episodes = EpisodeTracker(hp.num_envs)
