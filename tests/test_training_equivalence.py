@@ -188,6 +188,13 @@ def test_loss_terms_and_gradients_equal_the_clip_ppo_loss_pieces(on_logit, multi
             assert torch.equal(mine, reference), group
     if not multiplier_grad:
         assert all(g is None for g in our_grads["multiplier"])
+        # lambda(s) fixed for the rest of an iteration: z(s) of the whole batch, gathered per minibatch
+        logits = loss.multiplier_logits(batch.get("observation"))
+        index = torch.randperm(batch.shape[0], generator=torch.Generator().manual_seed(2))[:256]
+        shared, _ = terms_and_gradients(loss, lambda: loss.loss_terms(
+            *(minibatch.get(k) for k in loss.training_keys), multiplier_grad=False,
+            multiplier_logit=logits.index_select(0, index)))
+        assert all(torch.equal(shared[key], ours[key]) for key in ours)
     assert LAMBDA_KEY == loss.multiplier_network.out_keys[0]
 
 

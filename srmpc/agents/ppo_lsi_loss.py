@@ -221,10 +221,22 @@ class PPOLSILoss(ClipPPOLoss):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         return TensorDict(self.loss_terms(*(tensordict.get(key) for key in self.training_keys)), batch_size=[])
 
+    @torch.no_grad()
+    def multiplier_logits(self, observation: torch.Tensor) -> torch.Tensor:
+        """z(s) (N, 1) of every row of ``observation`` (N, obs_dim), without autograd.
+
+        The rows are padded to a multiple of :data:`ROW_BLOCK` (see :func:`critic_inputs`), so each
+        z(s) is the one a minibatch's forward pass computes when the minibatch size is a multiple
+        of :data:`ROW_BLOCK`.
+        """
+        padding = -observation.shape[0] % ROW_BLOCK
+        rows = torch.cat([observation, observation.new_zeros(padding, observation.shape[-1])]) if padding else observation
+        return self.multiplier_network.module.logit(rows)[:observation.shape[0]]
+
     def loss_terms(self, observation: torch.Tensor, action: torch.Tensor, sample_log_prob: torch.Tensor,
                    advantage: torch.Tensor, value_target: torch.Tensor, cost_advantage: torch.Tensor | None = None,
-                   cost_value_target: torch.Tensor | None = None, *,
-                   multiplier_grad: bool = True) -> dict[str, torch.Tensor]:
+                   cost_value_target: torch.Tensor | None = None, *, multiplier_grad: bool = True,
+                   multiplier_logit: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """Loss terms and diagnostics of one minibatch of N samples, on plain tensors.
 
         ``observation`` (N, obs_dim), ``action`` (N, 2), ``sample_log_prob`` (N,), the rest (N, 1).
@@ -235,7 +247,12 @@ class PPOLSILoss(ClipPPOLoss):
         0 the entropy (a Monte-Carlo estimate for TanhNormal, still drawn from torch's generator)
         is a diagnostic only and runs without autograd, and with ``multiplier_grad=False``
         (the iterations and minibatches where lambda(s) takes no step) so does lambda(s).
+        ``multiplier_logit`` (N, 1): z(s) of these states, already computed
+        (:meth:`multiplier_logits`, for the minibatches after lambda(s)'s last step of an iteration);
+        only without ``multiplier_grad``.
         """
+        if multiplier_logit is not None and multiplier_grad:
+            raise ValueError("multiplier_logit is given: lambda(s) cannot take a gradient")
         advantage = (advantage - advantage.mean()) / advantage.std().clamp_min(1e-8)
         adv_shape = advantage.shape[:-1]
         head, probabilistic = self.actor_network.module[0], self.actor_network.module[-1]
@@ -253,7 +270,7 @@ class PPOLSILoss(ClipPPOLoss):
             cost_advantage = cost_advantage - cost_advantage.mean()
             gain_cost = torch.maximum(ratio * cost_advantage, clipped_ratio * cost_advantage)
             with torch.set_grad_enabled(multiplier_grad and torch.is_grad_enabled()):
-                logit = self.multiplier_network.module.logit(observation)
+                logit = self.multiplier_network.module.logit(observation) if multiplier_logit is None else multiplier_logit
                 multiplier = torch.nn.functional.softplus(logit).clamp(max=self.lambda_max)
             lam = multiplier.detach()
             out["loss_objective"] = (-(gain_reward - lam * gain_cost) / (1.0 + lam)).mean()

@@ -40,7 +40,7 @@ from torchrl.envs import EnvBase
 from srmpc.agents.checkpoint import POLICY_NAME, load_checkpoint, save_checkpoint, save_policy
 from srmpc.agents.hyperparameters import PPOHyperparameters
 from srmpc.agents.networks import COST_VALUE_KEY, VALUE_KEY, make_actor, make_multiplier, make_value
-from srmpc.agents.ppo_lsi_loss import PPOLSILoss
+from srmpc.agents.ppo_lsi_loss import ROW_BLOCK, PPOLSILoss
 from srmpc.agents.rollout import RolloutCollector
 
 METRICS_CSV = "metrics.csv"
@@ -90,7 +90,8 @@ PROFILE_SECTIONS = ("collect", "episodes", "advantage", "data", "forward", "back
 """Sections of an iteration in ``Trainer.profile`` [s]: collection; episode bookkeeping; the GAEs
 (critics on s_t and s_{t+1}, recursion); data movement (the loss's tensors flattened, one gather
 per minibatch); the loss's forward pass (every network and term); backward; the gradient clips
-and the actor's and critics' Adam steps; lambda(s)'s clip and Adam step; the NaN checks and the
+and the actor's and critics' Adam steps; lambda(s) outside the forward pass (its clip and Adam
+step, and z(s) of the whole batch once it is fixed for the iteration); the NaN checks and the
 loss terms' read-out."""
 
 
@@ -341,6 +342,10 @@ class Trainer:
             progress = self.iteration / max(hp.iterations - 1, 1)
             for group in self.optimizers["multiplier"].param_groups:
                 group["lr"] = hp.multiplier_lr + progress * (hp.multiplier_lr_final - hp.multiplier_lr)
+        # After lambda(s)'s last step of the iteration z(s) is fixed: computed once for the whole
+        # batch, then gathered per minibatch (same floats when minibatches are whole row blocks)
+        share_logits = hp.constrained and hp.minibatch_size % ROW_BLOCK == 0
+        logits: torch.Tensor | None = None
         names: list[str] = []
         totals: list[float] = []
         count = 0
@@ -353,7 +358,12 @@ class Trainer:
                 step_multiplier = update_multiplier and count < hp.multiplier_steps
                 now = clock()
                 profile["data"] += now - lap
-                terms = self.loss.loss_terms(*minibatch, multiplier_grad=step_multiplier)
+                if share_logits and not step_multiplier and logits is None:
+                    logits = self.loss.multiplier_logits(data[0])
+                    lap, now = now, clock()
+                    profile["multiplier"] += now - lap
+                logit = None if logits is None else logits.index_select(0, index)
+                terms = self.loss.loss_terms(*minibatch, multiplier_grad=step_multiplier, multiplier_logit=logit)
                 losses = {k: v for k, v in terms.items() if k.startswith("loss_")}
                 total = sum(losses.values())
                 lap, now = now, clock()
