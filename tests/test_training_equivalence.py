@@ -15,11 +15,14 @@ import torch
 from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import TanhNormal
 
+from srmpc.agents import tanh_normal
 from srmpc.agents.hyperparameters import PPOHyperparameters, TrainTask
 from srmpc.agents.networks import COST_VALUE_KEY, LAMBDA_KEY
 from srmpc.agents.ppo_lsi_loss import COST_ADVANTAGE_KEY, COST_VALUE_TARGET_KEY, LOGIT_FLOOR, pearson
 from srmpc.agents.rollout import RolloutCollector, sample_actions
+from srmpc.agents.tanh_normal import actor_box, affine_of_box
 from srmpc.agents.toy_env import ToyConstrainedEnv
 from srmpc.agents.trainer import EpisodeTracker, build_loss, parameter_groups
 
@@ -80,7 +83,33 @@ def test_sample_actions_is_the_actor_random_pass():
         reference = loss.actor_network(TensorDict({"observation": observation}, batch_size=[64]))
         torch.manual_seed(5)
         action, log_prob = sample_actions(loss.actor_network, observation)
+        torch.manual_seed(5)
+        fast = sample_actions(loss.actor_network, observation, actor_box(loss.actor_network))
     assert torch.equal(action, reference["action"]) and torch.equal(log_prob, reference["action_log_prob"])
+    assert torch.equal(fast[0], action) and torch.equal(fast[1], log_prob)
+
+
+def test_tanh_normal_arithmetic_equals_torchrl_tanh_normal():
+    generator = torch.Generator().manual_seed(3)
+    loc = (torch.randn(500, 2, generator=generator) * 2).requires_grad_()
+    log_std = torch.randn(2, generator=generator).requires_grad_()
+    scale = log_std.exp().expand_as(loc)
+    dist = TanhNormal(loc=loc, scale=scale, low=LOW, high=HIGH)
+    box = affine_of_box(LOW, HIGH)
+    inside = torch.rand(500, 2, generator=generator) * (HIGH - LOW) + LOW
+    action = torch.cat([inside[:-4], torch.stack([LOW, HIGH, LOW * 0.999999, HIGH * 0.999999])])  # the edges too
+    ours, theirs = tanh_normal.log_prob(action, loc, scale, *box), dist.log_prob(action)
+    assert torch.equal(ours, theirs)
+    our_grads = torch.autograd.grad(ours.sum(), (loc, log_std), retain_graph=True)
+    assert all(torch.equal(a, b) for a, b in zip(our_grads, torch.autograd.grad(theirs.sum(), (loc, log_std), retain_graph=True)))
+    for shape in (torch.Size(()), torch.Size([1]), torch.Size([3])):
+        torch.manual_seed(9)
+        reference = dist.rsample_and_log_prob(shape)
+        torch.manual_seed(9)
+        mine = tanh_normal.rsample_and_log_prob(loc, scale, *box, shape)
+        assert all(torch.equal(a, b) for a, b in zip(mine, reference, strict=True)), shape
+        grads = [torch.autograd.grad(x[1].sum(), (loc, log_std), retain_graph=True) for x in (mine, reference)]
+        assert all(torch.equal(a, b) for a, b in zip(*grads, strict=True))
 
 
 def random_batch(num_envs: int = 6, steps: int = 40, seed: int = 0) -> TensorDict:
@@ -169,10 +198,10 @@ def terms_and_gradients(loss, compute) -> tuple[dict[str, torch.Tensor], dict[st
     return {k: v.detach() for k, v in terms.items()}, grads
 
 
-@pytest.mark.parametrize("on_logit", [False, True])
+@pytest.mark.parametrize(("on_logit", "entropy_coef"), [(False, 0.0), (True, 0.0), (False, 0.01)])
 @pytest.mark.parametrize("multiplier_grad", [True, False])
-def test_loss_terms_and_gradients_equal_the_clip_ppo_loss_pieces(on_logit, multiplier_grad):
-    loss = build_loss(30, LOW, HIGH, hyperparameters(multiplier_loss_on_logit=on_logit))
+def test_loss_terms_and_gradients_equal_the_clip_ppo_loss_pieces(on_logit, entropy_coef, multiplier_grad):
+    loss = build_loss(30, LOW, HIGH, hyperparameters(multiplier_loss_on_logit=on_logit, entropy_coef=entropy_coef))
     batch = loss.compute_advantages(random_batch(8, 64)).reshape(-1)
     with torch.no_grad():  # move the actor off its initial point so the ratios are not all 1
         loss.actor_network.module[0].module.loc_net[0].weight.mul_(1.5)

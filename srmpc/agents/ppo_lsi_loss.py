@@ -49,6 +49,7 @@ from torchrl.objectives.utils import distance_loss
 from torchrl.objectives.value import GAE
 from torchrl.objectives.value.functional import generalized_advantage_estimate
 
+from srmpc.agents import tanh_normal
 from srmpc.agents.networks import ACTION_KEY, COST_VALUE_KEY, LOG_PROB_KEY, OBSERVATION_KEY, VALUE_KEY
 
 COST_KEY = "cost"
@@ -146,6 +147,8 @@ class PPOLSILoss(ClipPPOLoss):
             loss_critic_type="l2", normalize_advantage=False,
         )
         self.set_keys(sample_log_prob=LOG_PROB_KEY, value=VALUE_KEY)
+        self.actor_box = tanh_normal.actor_box(actor_network)
+        """(c, h) of the TanhNormal actor's box (:mod:`srmpc.agents.tanh_normal`), None for another actor."""
         self.make_value_estimator(gamma=gamma, lmbda=gae_lambda)  # GAE (TorchRL default estimator)
         self.constrained = constrained
         self.cost_threshold = cost_threshold
@@ -242,7 +245,8 @@ class PPOLSILoss(ClipPPOLoss):
         ``observation`` (N, obs_dim), ``action`` (N, 2), ``sample_log_prob`` (N,), the rest (N, 1).
         The same operations as ``ClipPPOLoss`` on a TensorDict (``_log_weight``, ``_get_entropy``,
         ``loss_critic``): the actor head, ``TanhNormal``'s log-probability of the stored action and
-        TorchRL's entropy estimate on the networks' own modules, whose parameters are the loss
+        TorchRL's entropy estimate (for a TanhNormal actor their arithmetic alone,
+        :mod:`srmpc.agents.tanh_normal`) on the networks' own modules, whose parameters are the loss
         module's. Nothing is computed that no gradient or diagnostic reads: with ``entropy_coeff``
         0 the entropy (a Monte-Carlo estimate for TanhNormal, still drawn from torch's generator)
         is a diagnostic only and runs without autograd, and with ``multiplier_grad=False``
@@ -257,8 +261,11 @@ class PPOLSILoss(ClipPPOLoss):
         adv_shape = advantage.shape[:-1]
         head, probabilistic = self.actor_network.module[0], self.actor_network.module[-1]
         loc, scale = head.module(observation)
-        dist = probabilistic.distribution_class(loc=loc, scale=scale, **probabilistic.distribution_kwargs)
-        log_prob = dist.log_prob(action)
+        if self.actor_box is not None:
+            log_prob = tanh_normal.log_prob(action, loc, scale, *self.actor_box)
+        else:
+            dist = probabilistic.distribution_class(loc=loc, scale=scale, **probabilistic.distribution_kwargs)
+            log_prob = dist.log_prob(action)
         log_weight = (log_prob - sample_log_prob).unsqueeze(-1)
         kl_approx = (sample_log_prob - log_prob).unsqueeze(-1)
         ratio = log_weight.exp()
@@ -296,7 +303,12 @@ class PPOLSILoss(ClipPPOLoss):
             out["loss_objective"] = (-gain_reward).mean()
 
         with torch.set_grad_enabled(bool(self.entropy_coeff != 0) and torch.is_grad_enabled()):
-            entropy = self._get_entropy(dist, adv_shape=adv_shape)
+            if self.actor_box is not None:  # _get_entropy's Monte-Carlo estimate -E[log pi(a)]
+                _, sample_log_prob = tanh_normal.rsample_and_log_prob(
+                    loc, scale, *self.actor_box, torch.Size([self.samples_mc_entropy]))
+                entropy = (-sample_log_prob.mean(0)).unsqueeze(-1)
+            else:
+                entropy = self._get_entropy(dist, adv_shape=adv_shape)
         out["entropy"] = entropy.detach().mean()
         out["loss_entropy"] = self._weighted_loss_entropy(entropy).mean()
         state_value = self.critic_network.module(observation)

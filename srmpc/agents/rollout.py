@@ -5,8 +5,8 @@ Per step t (T = frames_per_batch / B), exactly as ``torchrl.collectors.Collector
 
   1. the actor's random pass on the current observations s_t (B, obs_dim):
      (loc, scale) = head(s_t), a_t ~ TanhNormal(loc, scale) by ``rsample``, log pi(a_t | s_t)
-     (:func:`sample_actions`, the same distribution calls as ``ProbabilisticActor``, so the same
-     draws from torch's generator and the same floats);
+     (:func:`sample_actions`: the arithmetic of ``ProbabilisticActor``'s calls, without the
+     distribution objects, so the same draws from torch's generator and the same floats);
   2. one env step, and a partial reset of the scenes that ended (``step_and_maybe_reset``): the
      "next" entries of step t are the step's own, the observation s_{t+1} is the new episode's
      where a scene ended.
@@ -32,10 +32,12 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import ProbabilisticActor
 from torchrl.modules.distributions.utils import sample_and_log_prob
 
+from srmpc.agents import tanh_normal
 from srmpc.agents.networks import ACTION_KEY, LOG_PROB_KEY, OBSERVATION_KEY
 
 
-def sample_actions(actor: ProbabilisticActor, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def sample_actions(actor: ProbabilisticActor, observation: torch.Tensor,
+                   box: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """(a, log pi(a|s)) of ``actor``'s random pass on ``observation``, without TensorDicts.
 
     ``ProbabilisticActor.forward`` (its ``SafeProbabilisticModule``) under ``ExplorationType.RANDOM``
@@ -43,9 +45,13 @@ def sample_actions(actor: ProbabilisticActor, observation: torch.Tensor) -> tupl
     ``dist = distribution_class(loc=loc, scale=scale, **distribution_kwargs)`` and TorchRL's
     ``sample_and_log_prob(dist, (), reparameterize=True)`` (``TanhNormal.rsample_and_log_prob``:
     the log-probability of the draw's own pre-image). Call it under ``torch.no_grad()``.
+    With ``box`` = :func:`srmpc.agents.tanh_normal.actor_box` (``TanhNormal`` actors), the
+    distribution's arithmetic runs without its objects (:mod:`srmpc.agents.tanh_normal`).
     """
     head, probabilistic = actor.module[0], actor.module[-1]
     loc, scale = head.module(observation)
+    if box is not None:
+        return tanh_normal.rsample_and_log_prob(loc, scale, *box)
     dist = probabilistic.distribution_class(loc=loc, scale=scale, **probabilistic.distribution_kwargs)
     return sample_and_log_prob(dist, torch.Size(()), reparameterize=dist.has_rsample)
 
@@ -71,6 +77,7 @@ class RolloutCollector:
             *env.full_observation_spec.items(True, True), *env.full_reward_spec.items(True, True),
             *env.full_done_spec.items(True, True))}
         self._fast = hasattr(env, "step_and_reset_into")
+        self._box = tanh_normal.actor_box(actor)
 
     def state(self) -> TensorDict:
         return TensorDict({OBSERVATION_KEY: self.observation.clone()}, batch_size=[self.num_envs])
@@ -98,7 +105,7 @@ class RolloutCollector:
         with set_exploration_type(ExplorationType.RANDOM):
             for t in range(self.steps):
                 observations[:, t] = self.observation
-                action, log_prob = sample_actions(self.actor, self.observation)
+                action, log_prob = sample_actions(self.actor, self.observation, self._box)
                 actions[:, t] = action
                 log_probs[:, t] = log_prob
                 step_out = {key: value[:, t] for key, value in nxt.items()}
