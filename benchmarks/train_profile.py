@@ -1,4 +1,4 @@
-"""Where a training iteration's time goes, before and after issue 41's changes, measured side by side.
+"""Where a training iteration's time goes: this checkout against a previous one, side by side.
 
     git worktree add /tmp/srmpc-961b49e 961b49e
     taskset -c 1 python benchmarks/train_profile.py --previous /tmp/srmpc-961b49e
