@@ -17,7 +17,9 @@ that a change in machine load hits all three: end-to-end env steps per second ov
 of timed iterations after the same warm-up, their medians over rounds, the ratios of the medians
 (``sb3_over_ours``: SB3 / our PPO; ``ours_over_sb3`` and ``ours_ppo_lsi_over_sb3``, the target
 being >= 1), and each one's split into collection and update (seconds per iteration; SB3's
-``collect_rollouts`` and ``train``).
+``collect_rollouts`` and ``train``). The same rates per second of the process's CPU time
+(``*_per_cpu_s``, ``*_over_sb3_cpu``) are less disturbed when other processes share the core.
+Pin the run to one idle core: ``taskset -c 1 python benchmarks/train_throughput.py``.
 """
 
 from __future__ import annotations
@@ -38,9 +40,9 @@ from srmpc.stages.train import make_training_env
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def time_ours(config, warmup: int, iterations: int) -> tuple[float, float, dict[str, float]]:
-    """(end-to-end env steps/s, collection env steps/s, seconds per iteration by section) of our
-    trainer over ``iterations`` after ``warmup``."""
+def time_ours(config, warmup: int, iterations: int) -> tuple[float, float, dict[str, float], float]:
+    """(end-to-end env steps/s, collection env steps/s, seconds per iteration by section, env steps
+    per second of this process's CPU time) of our trainer over ``iterations`` after ``warmup``."""
     from srmpc.agents.trainer import PROFILE_SECTIONS, Trainer
 
     hp = config.agent
@@ -55,19 +57,20 @@ def time_ours(config, warmup: int, iterations: int) -> tuple[float, float, dict[
         trainer = Trainer(env, hp, Path(directory), run=None, progress=False)
         trainer.train(max_iterations=warmup)
         rows: list[dict] = []
-        started = time.perf_counter()
+        started, cpu_started = time.perf_counter(), time.process_time()
         trainer.train(max_iterations=iterations, on_iteration=lambda metrics: (rows.append(metrics),
                                                                                 add_profile(metrics)))
-        wall = time.perf_counter() - started
+        wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
         trainer.close()
     frames = hp.frames_per_batch * iterations
     split["other"] = wall / iterations - sum(split.values())  # metrics, CSV, checkpoints
-    return frames / wall, frames / sum(r["collect_s"] for r in rows), split
+    return frames / wall, frames / sum(r["collect_s"] for r in rows), split, frames / cpu
 
 
-def time_sb3(config, warmup: int, iterations: int) -> tuple[float, dict[str, float]]:
-    """(end-to-end env steps/s, seconds per iteration in collect_rollouts / train / the rest) of
-    Stable-Baselines3's PPO (srmpc.sb3_ppo) over ``iterations`` after ``warmup``."""
+def time_sb3(config, warmup: int, iterations: int) -> tuple[float, dict[str, float], float]:
+    """(end-to-end env steps/s, seconds per iteration in collect_rollouts / train / the rest, env
+    steps per second of CPU time) of Stable-Baselines3's PPO (srmpc.sb3_ppo) over ``iterations``
+    after ``warmup``."""
     import torch
 
     from srmpc.sb3_ppo.training import make_ppo
@@ -91,12 +94,13 @@ def time_sb3(config, warmup: int, iterations: int) -> tuple[float, dict[str, flo
     model.train = timed(model.train, "update")
     model.learn(total_timesteps=warmup * hp.frames_per_batch)
     seconds.update(collect=0.0, update=0.0)
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
     model.learn(total_timesteps=iterations * hp.frames_per_batch, reset_num_timesteps=False)
-    wall = time.perf_counter() - started
+    wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
     split = {k: v / iterations for k, v in seconds.items()}
     split["other"] = wall / iterations - sum(split.values())
-    return iterations * hp.frames_per_batch / wall, split
+    frames = iterations * hp.frames_per_batch
+    return frames / wall, split, frames / cpu
 
 
 def median_split(splits: list[dict[str, float]]) -> dict[str, float]:
@@ -108,7 +112,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--iterations", type=int, default=3, help="timed iterations")
     parser.add_argument("--warmup", type=int, default=1, help="untimed iterations first")
-    parser.add_argument("--rounds", type=int, default=3, help="alternating rounds of the SB3 comparison")
+    parser.add_argument("--rounds", type=int, default=5, help="alternating rounds of the SB3 comparison")
     parser.add_argument("--no-sb3", action="store_true", help="skip the comparison with Stable-Baselines3's PPO")
     parser.add_argument("--output", type=Path, default=ROOT / "results/benchmarks/train_throughput.json")
     parser.add_argument("overrides", nargs="*", help="Hydra overrides")
@@ -116,7 +120,7 @@ def main() -> None:
 
     config = to_objects(compose_config(["stage=train", *args.overrides]))
     hp = config.agent
-    steps_per_s, collect_steps_per_s, split = time_ours(config, args.warmup, args.iterations)
+    steps_per_s, collect_steps_per_s, split, _ = time_ours(config, args.warmup, args.iterations)
     frames = hp.frames_per_batch * args.iterations
     wall, collect = frames / steps_per_s, frames / collect_steps_per_s
     result = {
@@ -145,6 +149,8 @@ def main() -> None:
         ours_median = statistics.median(r[0] for r in ours)
         lsi_median = statistics.median(r[0] for r in ours_lsi)
         sb3_median = statistics.median(r[0] for r in sb3)
+        cpu = {name: statistics.median(r[-1] for r in runs) for name, runs in
+               (("ours", ours), ("ours_ppo_lsi", ours_lsi), ("sb3", sb3))}
         result["sb3_comparison"] = {
             "ours_env_steps_per_s": ours_median, "sb3_env_steps_per_s": sb3_median,
             "sb3_over_ours": sb3_median / ours_median,
@@ -154,6 +160,9 @@ def main() -> None:
             "ours_split_s_per_iteration": median_split([r[2] for r in ours]),
             "ours_ppo_lsi_split_s_per_iteration": median_split([r[2] for r in ours_lsi]),
             "sb3_split_s_per_iteration": median_split([r[1] for r in sb3]),
+            "ours_env_steps_per_cpu_s": cpu["ours"], "ours_ppo_lsi_env_steps_per_cpu_s": cpu["ours_ppo_lsi"],
+            "sb3_env_steps_per_cpu_s": cpu["sb3"], "ours_over_sb3_cpu": cpu["ours"] / cpu["sb3"],
+            "ours_ppo_lsi_over_sb3_cpu": cpu["ours_ppo_lsi"] / cpu["sb3"],
             "ours_rounds": [r[0] for r in ours], "ours_ppo_lsi_rounds": [r[0] for r in ours_lsi],
             "sb3_rounds": [r[0] for r in sb3], "agent": "ppo", "num_envs": ppo.agent.num_envs,
             "frames_per_batch": ppo.agent.frames_per_batch, "minibatch_size": ppo.agent.minibatch_size,
@@ -164,7 +173,7 @@ def main() -> None:
     print(json.dumps({k: result[k] for k in ("env_steps_per_s", "collect_steps_per_s", "iteration_s")}))
     if "sb3_comparison" in result:
         print(json.dumps({k: v for k, v in result["sb3_comparison"].items()
-                          if k.endswith(("per_s", "over_ours", "over_sb3"))}))
+                          if k.endswith(("per_s", "per_cpu_s", "over_ours", "over_sb3", "over_sb3_cpu"))}))
 
 
 if __name__ == "__main__":
