@@ -45,9 +45,12 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.utils import distance_loss
 from torchrl.objectives.value import GAE
+from torchrl.objectives.value.functional import generalized_advantage_estimate
 
-from srmpc.agents.networks import COST_VALUE_KEY, LOG_PROB_KEY, VALUE_KEY
+from srmpc.agents import tanh_normal
+from srmpc.agents.networks import ACTION_KEY, COST_VALUE_KEY, LOG_PROB_KEY, OBSERVATION_KEY, VALUE_KEY
 
 COST_KEY = "cost"
 COST_ADVANTAGE_KEY = "cost_advantage"
@@ -61,6 +64,39 @@ def pearson(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     x, y = x - x.mean(), y - y.mean()
     denominator = (x.pow(2).sum() * y.pow(2).sum()).sqrt()
     return torch.where(denominator > 0, (x * y).sum() / denominator.clamp_min(1e-30), torch.zeros_like(denominator))
+
+
+ROW_BLOCK = 256
+"""The critics' input rows in the GAE are padded to a multiple of this (see :func:`critic_inputs`)."""
+
+
+def critic_inputs(observation: torch.Tensor, next_observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The states a critic must see for v(s_t) and v(s_{t+1}) of a (B, T) batch, each once.
+
+    Returns ``rows``: the B T observations, then the next observations that are not the next
+    row's observation (bitwise), then zero rows up to a multiple of :data:`ROW_BLOCK`; and
+    ``elsewhere`` (B, T) bool marking those next observations: every last step, and the steps where
+    the episode ended (the next observation is the terminal one, the next row the new episode's
+    first). The padding is there because a matrix product's last M mod 4 rows go through another
+    kernel (MKL's sgemm on this CPU: they can differ in the last bit from the same row inside a
+    block), while the GAE modules' products (M = 2 B T) have no such tail.
+    """
+    elsewhere = torch.ones(next_observation.shape[:-1], dtype=torch.bool)
+    elsewhere[:, :-1] = (next_observation[:, :-1] != observation[:, 1:]).any(-1)
+    extra = next_observation[elsewhere]
+    padding = extra.new_zeros((-(elsewhere.numel() + extra.shape[0]) % ROW_BLOCK, extra.shape[-1]))
+    rows = torch.cat([observation.reshape(-1, observation.shape[-1]), extra, padding])
+    return rows, elsewhere
+
+
+def split_values(values: torch.Tensor, shape: torch.Size, elsewhere: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(v(s_t), v(s_{t+1})), each (B, T, 1), from a critic's output on :func:`critic_inputs`' rows."""
+    count = shape.numel()
+    value = values[:count].reshape(*shape, -1)
+    next_value = torch.empty_like(value)
+    next_value[:, :-1] = value[:, 1:]
+    next_value[elsewhere] = values[count:count + int(elsewhere.sum())]
+    return value, next_value
 
 
 class PPOLSILoss(ClipPPOLoss):
@@ -111,6 +147,8 @@ class PPOLSILoss(ClipPPOLoss):
             loss_critic_type="l2", normalize_advantage=False,
         )
         self.set_keys(sample_log_prob=LOG_PROB_KEY, value=VALUE_KEY)
+        self.actor_box = tanh_normal.actor_box(actor_network)
+        """(c, h) of the TanhNormal actor's box (:mod:`srmpc.agents.tanh_normal`), None for another actor."""
         self.make_value_estimator(gamma=gamma, lmbda=gae_lambda)  # GAE (TorchRL default estimator)
         self.constrained = constrained
         self.cost_threshold = cost_threshold
@@ -144,43 +182,118 @@ class PPOLSILoss(ClipPPOLoss):
 
     @torch.no_grad()
     def compute_advantages(self, batch: TensorDictBase) -> TensorDictBase:
-        """Write advantage / value_target (reward GAE) and, if constrained, the cost ones, in place."""
-        self.value_estimator(batch)
+        """Write advantage / value_target (reward GAE) and, if constrained, the cost ones, in place.
+
+        The same floats as calling TorchRL's ``GAE`` modules (``self.value_estimator``,
+        ``self.cost_value_estimator``) on the (B, T) batch, without their TensorDict plumbing and
+        without evaluating a critic twice on one state: v(s_{t+1}) is v(s_{t+1}) of the next row of
+        the batch wherever the next observation is that row's observation (bit for bit), and each
+        critic runs once on the observations plus the other next observations (at the batch's last
+        step and where an episode ended; :func:`critic_inputs`). A matrix product's row does not
+        depend on the other rows, so these values are those of the GAE modules, which run each
+        critic on all of s_t and all of s_{t+1}. TorchRL's own ``generalized_advantage_estimate``
+        then runs the recursion over t (A_t = delta_t + gamma lambda (1 - done_t) A_{t+1},
+        delta_t = r_t + gamma (1 - terminated_t) v(s_{t+1}) - v(s_t)) with the modules' gamma and lambda.
+        """
+        nxt = batch.get("next")
+        observation, next_observation = batch.get(OBSERVATION_KEY), nxt.get(OBSERVATION_KEY)
+        rows, elsewhere = critic_inputs(observation, next_observation)
+        done, terminated = nxt.get("done"), nxt.get("terminated")
+        estimators = [(self.value_estimator, self.critic_network, "reward", VALUE_KEY, self.tensor_keys.advantage,
+                       self.tensor_keys.value_target)]
         if self.constrained:
-            self.cost_value_estimator(batch)
+            estimators.append((self.cost_value_estimator, self.cost_critic_network, COST_KEY, COST_VALUE_KEY,
+                               COST_ADVANTAGE_KEY, COST_VALUE_TARGET_KEY))
+        for estimator, critic, reward_key, value_key, advantage_key, target_key in estimators:
+            value, next_value = split_values(critic.module(rows), observation.shape[:-1], elsewhere)
+            advantage, value_target = generalized_advantage_estimate(
+                estimator.gamma, estimator.lmbda, value, next_value, nxt.get(reward_key), done=done,
+                terminated=terminated, time_dim=batch.ndim - 1)
+            batch.set(value_key, value)
+            nxt.set(value_key, next_value)
+            batch.set(advantage_key, advantage)
+            batch.set(target_key, value_target)
         return batch
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        td = tensordict.clone(False)
-        advantage = td.get(self.tensor_keys.advantage)
-        advantage = (advantage - advantage.mean()) / advantage.std().clamp_min(1e-8)
+    @property
+    def training_keys(self) -> tuple[str, ...]:
+        """The batch entries a minibatch needs, in :meth:`loss_terms`'s argument order."""
+        keys = (OBSERVATION_KEY, ACTION_KEY, LOG_PROB_KEY, self.tensor_keys.advantage, self.tensor_keys.value_target)
+        return keys + ((COST_ADVANTAGE_KEY, COST_VALUE_TARGET_KEY) if self.constrained else ())
 
-        log_weight, dist, kl_approx, _ = self._log_weight(td, adv_shape=advantage.shape[:-1])
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return TensorDict(self.loss_terms(*(tensordict.get(key) for key in self.training_keys)), batch_size=[])
+
+    @torch.no_grad()
+    def multiplier_logits(self, observation: torch.Tensor) -> torch.Tensor:
+        """z(s) (N, 1) of every row of ``observation`` (N, obs_dim), without autograd.
+
+        The rows are padded to a multiple of :data:`ROW_BLOCK` (see :func:`critic_inputs`), so each
+        z(s) is the one a minibatch's forward pass computes when the minibatch size is a multiple
+        of :data:`ROW_BLOCK`.
+        """
+        padding = -observation.shape[0] % ROW_BLOCK
+        rows = torch.cat([observation, observation.new_zeros(padding, observation.shape[-1])]) if padding else observation
+        return self.multiplier_network.module.logit(rows)[:observation.shape[0]]
+
+    def loss_terms(self, observation: torch.Tensor, action: torch.Tensor, sample_log_prob: torch.Tensor,
+                   advantage: torch.Tensor, value_target: torch.Tensor, cost_advantage: torch.Tensor | None = None,
+                   cost_value_target: torch.Tensor | None = None, *, multiplier_grad: bool = True,
+                   multiplier_logit: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """Loss terms and diagnostics of one minibatch of N samples, on plain tensors.
+
+        ``observation`` (N, obs_dim), ``action`` (N, 2), ``sample_log_prob`` (N,), the rest (N, 1).
+        The same operations as ``ClipPPOLoss`` on a TensorDict (``_log_weight``, ``_get_entropy``,
+        ``loss_critic``): the actor head, ``TanhNormal``'s log-probability of the stored action and
+        TorchRL's entropy estimate (for a TanhNormal actor their arithmetic alone,
+        :mod:`srmpc.agents.tanh_normal`) on the networks' own modules, whose parameters are the loss
+        module's. Nothing is computed that no gradient or diagnostic reads: with ``entropy_coeff``
+        0 the entropy (a Monte-Carlo estimate for TanhNormal, still drawn from torch's generator)
+        is a diagnostic only and runs without autograd, and with ``multiplier_grad=False``
+        (the iterations and minibatches where lambda(s) takes no step) so does lambda(s).
+        ``multiplier_logit`` (N, 1): z(s) of these states, already computed
+        (:meth:`multiplier_logits`, for the minibatches after lambda(s)'s last step of an iteration);
+        only without ``multiplier_grad``.
+        """
+        if multiplier_logit is not None and multiplier_grad:
+            raise ValueError("multiplier_logit is given: lambda(s) cannot take a gradient")
+        advantage = (advantage - advantage.mean()) / advantage.std().clamp_min(1e-8)
+        adv_shape = advantage.shape[:-1]
+        head, probabilistic = self.actor_network.module[0], self.actor_network.module[-1]
+        loc, scale = head.module(observation)
+        if self.actor_box is not None:
+            log_prob = tanh_normal.log_prob(action, loc, scale, *self.actor_box)
+        else:
+            dist = probabilistic.distribution_class(loc=loc, scale=scale, **probabilistic.distribution_kwargs)
+            log_prob = dist.log_prob(action)
+        log_weight = (log_prob - sample_log_prob).unsqueeze(-1)
+        kl_approx = (sample_log_prob - log_prob).unsqueeze(-1)
         ratio = log_weight.exp()
         clipped_ratio = log_weight.clamp(*self._clip_bounds).exp()
         gain_reward = torch.minimum(ratio * advantage, clipped_ratio * advantage)
 
         out = {}
         if self.constrained:
-            cost_advantage = td.get(COST_ADVANTAGE_KEY)
             cost_advantage = cost_advantage - cost_advantage.mean()
             gain_cost = torch.maximum(ratio * cost_advantage, clipped_ratio * cost_advantage)
-            logit = self.multiplier_network.module.logit(td.get(self.multiplier_network.in_keys[0]))
-            multiplier = torch.nn.functional.softplus(logit).clamp(max=self.lambda_max)
+            with torch.set_grad_enabled(multiplier_grad and torch.is_grad_enabled()):
+                logit = self.multiplier_network.module.logit(observation) if multiplier_logit is None else multiplier_logit
+                multiplier = torch.nn.functional.softplus(logit).clamp(max=self.lambda_max)
             lam = multiplier.detach()
             out["loss_objective"] = (-(gain_reward - lam * gain_cost) / (1.0 + lam)).mean()
 
-            cost_value = self.cost_critic_network(td.select(*self.cost_critic_network.in_keys)).get(COST_VALUE_KEY)
-            out["loss_cost_critic"] = (cost_value - td.get(COST_VALUE_TARGET_KEY)).pow(2).mean()
+            cost_value = self.cost_critic_network.module(observation)
+            out["loss_cost_critic"] = (cost_value - cost_value_target).pow(2).mean()
             violation = cost_value.detach() - self.cost_threshold
             if self.violation_normalization:
                 violation = violation / violation.std().clamp_min(1e-8)
             violation = violation.clamp(-self.violation_clip[0], self.violation_clip[1])
-            if self.multiplier_loss_on_logit:
-                at_bound = ((logit <= LOGIT_FLOOR) & (violation < 0)) | ((lam >= self.lambda_max) & (violation > 0))
-                out["loss_multiplier"] = -(torch.where(at_bound, logit.detach(), logit) * violation).mean()
-            else:
-                out["loss_multiplier"] = -(multiplier * violation).mean()
+            with torch.set_grad_enabled(multiplier_grad and torch.is_grad_enabled()):
+                if self.multiplier_loss_on_logit:
+                    at_bound = ((logit <= LOGIT_FLOOR) & (violation < 0)) | ((lam >= self.lambda_max) & (violation > 0))
+                    out["loss_multiplier"] = -(torch.where(at_bound, logit.detach(), logit) * violation).mean()
+                else:
+                    out["loss_multiplier"] = -(multiplier * violation).mean()
             out["lambda_mean"] = lam.mean()
             out["lambda_max"] = lam.max()
             out["lambda_share_at_max"] = (lam >= self.lambda_max * (1.0 - 1e-6)).float().mean()
@@ -189,11 +302,18 @@ class PPOLSILoss(ClipPPOLoss):
         else:
             out["loss_objective"] = (-gain_reward).mean()
 
-        entropy = self._get_entropy(dist, adv_shape=advantage.shape[:-1])
+        with torch.set_grad_enabled(bool(self.entropy_coeff != 0) and torch.is_grad_enabled()):
+            if self.actor_box is not None:  # _get_entropy's Monte-Carlo estimate -E[log pi(a)]
+                _, sample_log_prob = tanh_normal.rsample_and_log_prob(
+                    loc, scale, *self.actor_box, torch.Size([self.samples_mc_entropy]))
+                entropy = (-sample_log_prob.mean(0)).unsqueeze(-1)
+            else:
+                entropy = self._get_entropy(dist, adv_shape=adv_shape)
         out["entropy"] = entropy.detach().mean()
         out["loss_entropy"] = self._weighted_loss_entropy(entropy).mean()
-        loss_critic, _, _ = self.loss_critic(td)
-        out["loss_critic"] = loss_critic.mean()
+        state_value = self.critic_network.module(observation)
+        out["loss_critic"] = (self.critic_coeff * distance_loss(value_target, state_value,
+                                                                loss_function=self.loss_critic_type)).mean()
         out["clip_fraction"] = (log_weight.detach().clamp(*self._clip_bounds) != log_weight.detach()).float().mean()
         out["kl_approx"] = kl_approx.detach().mean()
-        return TensorDict(out, batch_size=[])
+        return out

@@ -1,15 +1,20 @@
 """Training loop of PPO / PPO-L-SI over a batched TorchRL env (CleanRL layout, TorchRL parts).
 
 Per iteration:
-  1. collect ``frames_per_batch`` steps from the B envs with TorchRL's ``Collector`` (T = frames / B
-     steps per env; episodes continue across iterations, partial resets via "_reset");
+  1. collect ``frames_per_batch`` steps from the B envs (T = frames / B steps per env; episodes
+     continue across iterations, partial resets of the scenes that ended), with
+     :class:`srmpc.agents.rollout.RolloutCollector`: TorchRL's ``Collector`` loop, same floats,
+     without its per-step TensorDicts;
   2. episode bookkeeping: per-env running sums of r', event cost, SI cost, steps, vx; finished
      episodes give the logged episode metrics;
   3. two GAEs (reward and, if constrained, cost) under no_grad;
-  4. ``epochs`` passes of shuffled minibatches: actor + critics step on every minibatch; lambda(s)
+  4. ``epochs`` passes of shuffled minibatches (the loss's tensors gathered once per minibatch,
+     no TensorDict): actor + critics step on every minibatch; lambda(s)
      steps on the first ``multiplier_steps`` minibatches of every ``multiplier_update_every``-th
      iteration (slow timescale), its learning rate decaying linearly if ``multiplier_lr_final`` is set;
   5. NaN/Inf check of every loss term and parameter; metrics to MLflow; checkpoint every K iterations.
+
+``Trainer.profile`` holds the last iteration's wall time per section (:data:`PROFILE_SECTIONS`).
 
 The env must provide "observation" (B, obs_dim), a Bounded "action" spec, and in "next": "reward",
 "cost", "reward_prime", "event_cost", "vx", "done", "terminated", "truncated" (all (B, 1)).
@@ -30,13 +35,13 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.collectors import Collector
 from torchrl.envs import EnvBase
 
 from srmpc.agents.checkpoint import POLICY_NAME, load_checkpoint, save_checkpoint, save_policy
 from srmpc.agents.hyperparameters import PPOHyperparameters
 from srmpc.agents.networks import COST_VALUE_KEY, VALUE_KEY, make_actor, make_multiplier, make_value
-from srmpc.agents.ppo_lsi_loss import PPOLSILoss
+from srmpc.agents.ppo_lsi_loss import ROW_BLOCK, PPOLSILoss
+from srmpc.agents.rollout import RolloutCollector
 
 METRICS_CSV = "metrics.csv"
 MULTIPLIER_JSON = "multiplier.json"
@@ -78,6 +83,16 @@ def append_metrics_row(path: Path, metrics: dict[str, float]) -> None:
     """One iteration's row of ``metrics.csv`` (columns it lacks stay empty)."""
     with path.open("a", newline="") as handle:
         csv.DictWriter(handle, fieldnames=CSV_COLUMNS).writerow({k: metrics.get(k, "") for k in CSV_COLUMNS})
+
+
+PROFILE_SECTIONS = ("collect", "episodes", "advantage", "data", "forward", "backward", "optimizer", "multiplier",
+                    "diagnostics")
+"""Sections of an iteration in ``Trainer.profile`` [s]: collection; episode bookkeeping; the GAEs
+(critics on s_t and s_{t+1}, recursion); data movement (the loss's tensors flattened, one gather
+per minibatch); the loss's forward pass (every network and term); backward; the gradient clips
+and the actor's and critics' Adam steps; lambda(s) outside the forward pass (its clip and Adam
+step, and z(s) of the whole batch once it is fixed for the iteration); the NaN checks and the
+loss terms' read-out."""
 
 
 class NonFiniteError(RuntimeError):
@@ -130,31 +145,38 @@ class EpisodeTracker:
     of event costs (the paper's J_c); si_cost_return: sum of the SI cost c; steps; vx_sum -> mean vx."""
 
     def __post_init__(self) -> None:
-        if not self.sums:
-            self.sums = {k: torch.zeros(self.num_envs, dtype=torch.float64) for k in self.KEYS}
+        self._stacked = torch.zeros(len(self.KEYS), self.num_envs, dtype=torch.float64)
+        for row, k in zip(self._stacked, self.KEYS, strict=True):
+            if k in self.sums:
+                row.copy_(self.sums[k])
+        self.sums = dict(zip(self.KEYS, self._stacked, strict=True))  # views of the rows of _stacked
 
     def update(self, batch: TensorDictBase) -> list[dict[str, float]]:
-        """Consume a (B, T) batch; return the episodes that ended in it."""
+        """Consume a (B, T) batch; return the episodes that ended in it (ordered by step, then env).
+
+        All KEYS advance together as the rows of one (6, B) float64 tensor, step by step, so every
+        sum adds the same float64 values in the same order as one per key would.
+        """
         nxt = batch.get("next")
-        columns = {
-            "return": nxt.get("reward_prime"), "train_return": nxt.get("reward"), "cost_return": nxt.get("event_cost"),
-            "si_cost_return": nxt.get("cost"), "steps": torch.ones_like(nxt.get("reward_prime")),
-            "vx_sum": nxt.get("vx"),
-        }
-        columns = {k: v.reshape(self.num_envs, -1).double() for k, v in columns.items()}
+        reward_prime = nxt.get("reward_prime").reshape(self.num_envs, -1)
+        columns = torch.stack([
+            reward_prime, nxt.get("reward").reshape(self.num_envs, -1), nxt.get("event_cost").reshape(self.num_envs, -1),
+            nxt.get("cost").reshape(self.num_envs, -1), torch.ones_like(reward_prime),
+            nxt.get("vx").reshape(self.num_envs, -1),
+        ]).double()  # (6, B, T) in KEYS order
         done = nxt.get("done").reshape(self.num_envs, -1)
-        self.total_event_cost += float(columns["cost_return"].sum())
+        self.total_event_cost += float(columns[self.KEYS.index("cost_return")].sum())
         self.total_steps += done.numel()
         ended: list[dict[str, float]] = []
         for t in range(done.shape[1]):
-            for k in self.KEYS:
-                self.sums[k] += columns[k][:, t]
-            for i in done[:, t].nonzero().flatten().tolist():
-                episode = {k: float(self.sums[k][i]) for k in self.KEYS}
-                episode["vx"] = episode.pop("vx_sum") / max(episode["steps"], 1.0)
-                ended.append(episode)
-                for k in self.KEYS:
-                    self.sums[k][i] = 0.0
+            self._stacked += columns[:, :, t]
+            finished = done[:, t].nonzero().flatten()
+            if finished.numel():
+                for values in self._stacked[:, finished].T.tolist():
+                    episode = dict(zip(self.KEYS, values, strict=True))
+                    episode["vx"] = episode.pop("vx_sum") / max(episode["steps"], 1.0)
+                    ended.append(episode)
+                self._stacked[:, finished] = 0.0
         self.finished.extend(ended)
         return ended
 
@@ -163,9 +185,14 @@ class EpisodeTracker:
                 "total_steps": self.total_steps}
 
     def load(self, state: dict[str, Any]) -> None:
-        self.sums = {k: v.clone() for k, v in state["sums"].items()}
+        for k in self.KEYS:
+            self.sums[k].copy_(state["sums"][k])
         self.total_event_cost = state["total_event_cost"]
         self.total_steps = state["total_steps"]
+
+    def clear(self) -> None:
+        """Zero the running sums (episodes restart)."""
+        self._stacked.zero_()
 
 
 def env_runtime_state(env: EnvBase) -> Any:
@@ -221,27 +248,27 @@ class Trainer:
         self.loss = build_loss(self.observation_dim, self.action_low, self.action_high, hp)
         groups = parameter_groups(self.loss)
         self.optimizers = {
-            "actor": torch.optim.Adam(groups["actor"], lr=hp.actor_lr, eps=1e-5),
-            "critic": torch.optim.Adam(groups["critic"], lr=hp.critic_lr, eps=1e-5),
+            "actor": torch.optim.Adam(groups["actor"], lr=hp.actor_lr, eps=1e-5, foreach=True),
+            "critic": torch.optim.Adam(groups["critic"], lr=hp.critic_lr, eps=1e-5, foreach=True),
         }
         if hp.constrained:
-            self.optimizers["multiplier"] = torch.optim.Adam(groups["multiplier"], lr=hp.multiplier_lr, eps=1e-5)
+            self.optimizers["multiplier"] = torch.optim.Adam(groups["multiplier"], lr=hp.multiplier_lr, eps=1e-5,
+                                                             foreach=True)
         self.groups = groups
         self.shuffle = torch.Generator().manual_seed(hp.seed)
         self.episodes = EpisodeTracker(hp.num_envs)
         self.iteration = 0
         self.frames = 0
         self.wall_s = 0.0
-        self.collector = Collector(env, self.loss.actor_network, frames_per_batch=hp.frames_per_batch,
-                                   total_frames=-1, auto_register_policy_transforms=False)
-        self._batches = iter(self.collector)
+        self.collector = RolloutCollector(env, self.loss.actor_network, hp.frames_per_batch)
+        self.profile: dict[str, float] = dict.fromkeys(PROFILE_SECTIONS, 0.0)
         self.resumed_from: int | None = None
         checkpoint = load_checkpoint(self.output_dir)
         if checkpoint is not None:
             self.load_state(checkpoint)
             self.resumed_from = self.iteration
         else:
-            torch.manual_seed(hp.seed)  # the collector's construction may have drawn numbers
+            torch.manual_seed(hp.seed)  # as before the collector's construction (TorchRL's could draw numbers)
         self._snapshot = self.state()
 
     # ----------------------------------------------------------------------------------------- state
@@ -253,7 +280,7 @@ class Trainer:
             "loss": self.loss.state_dict(),
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "torch_rng": torch.get_rng_state(), "shuffle_rng": self.shuffle.get_state(),
-            "carrier": self.collector._carrier.clone(),  # TorchRL keeps the current observations here
+            "carrier": self.collector.state(),  # the current observations
             "env": env_state, "episodes": self.episodes.state(),
             "hyperparameters": asdict(self.hp),
         })
@@ -266,11 +293,11 @@ class Trainer:
         torch.set_rng_state(state["torch_rng"])
         self.shuffle.set_state(state["shuffle_rng"])
         if load_env_runtime_state(self.env, state["env"]):
-            self.collector._carrier.update(state["carrier"])
+            self.collector.load_state(state["carrier"])
             self.episodes.load(state["episodes"])
         else:  # the env cannot restore its state: episodes restart from fresh resets
             self.episodes.load(state["episodes"])
-            self.episodes.sums = {k: torch.zeros_like(v) for k, v in self.episodes.sums.items()}
+            self.episodes.clear()
 
     def save(self, state: dict[str, Any] | None = None) -> Path:
         state = self._snapshot if state is None else state
@@ -294,39 +321,88 @@ class Trainer:
                 )
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """Advantages, then ``epochs`` passes of minibatch SGD; returns minibatch-averaged loss terms."""
-        hp = self.hp
+        """Advantages, then ``epochs`` passes of minibatch SGD; returns minibatch-averaged loss terms.
+
+        Each minibatch gathers only the loss's own tensors (``PPOLSILoss.training_keys``) with one
+        ``index_select`` each and calls ``PPOLSILoss.loss_terms`` on them; lambda(s) builds its
+        graph only on the minibatches where it takes a step.
+        """
+        hp, profile, clock = self.hp, self.profile, time.perf_counter
+        started = clock()
         self.loss.compute_advantages(batch)
-        flat = batch.reshape(-1)
+        lap = clock()
+        profile["advantage"] = lap - started
+        for k in ("data", "forward", "backward", "optimizer", "multiplier", "diagnostics"):
+            profile[k] = 0.0
+        samples = batch.numel()
+        data = [batch.get(key).reshape(samples, *batch.get(key).shape[batch.ndim:]) for key in self.loss.training_keys]
+        profile["data"] += clock() - lap
         update_multiplier = hp.constrained and (self.iteration + 1) % hp.multiplier_update_every == 0
         if update_multiplier and hp.multiplier_lr_final is not None:
             progress = self.iteration / max(hp.iterations - 1, 1)
             for group in self.optimizers["multiplier"].param_groups:
                 group["lr"] = hp.multiplier_lr + progress * (hp.multiplier_lr_final - hp.multiplier_lr)
-        sums: dict[str, float] = {}
+        # After lambda(s)'s last step of the iteration z(s) is fixed: computed once for the whole
+        # batch, then gathered per minibatch (same floats when minibatches are whole row blocks)
+        share_logits = hp.constrained and hp.minibatch_size % ROW_BLOCK == 0
+        logits: torch.Tensor | None = None
+        names: list[str] = []
+        totals: list[float] = []
         count = 0
         for _ in range(hp.epochs):
-            order = torch.randperm(flat.shape[0], generator=self.shuffle)
-            for start in range(0, flat.shape[0], hp.minibatch_size):
-                terms = self.loss(flat[order[start:start + hp.minibatch_size]])
-                self._check_finite({k: v for k, v in terms.items() if k.startswith("loss_")}, "loss term")
-                total = sum(v for k, v in terms.items() if k.startswith("loss_"))
+            order = torch.randperm(samples, generator=self.shuffle)
+            for start in range(0, samples, hp.minibatch_size):
+                lap = clock()
+                index = order[start:start + hp.minibatch_size]
+                minibatch = [tensor.index_select(0, index) for tensor in data]
+                step_multiplier = update_multiplier and count < hp.multiplier_steps
+                now = clock()
+                profile["data"] += now - lap
+                if share_logits and not step_multiplier and logits is None:
+                    logits = self.loss.multiplier_logits(data[0])
+                    lap, now = now, clock()
+                    profile["multiplier"] += now - lap
+                logit = None if logits is None else logits.index_select(0, index)
+                terms = self.loss.loss_terms(*minibatch, multiplier_grad=step_multiplier, multiplier_logit=logit)
+                losses = {k: v for k, v in terms.items() if k.startswith("loss_")}
+                total = sum(losses.values())
+                lap, now = now, clock()
+                profile["forward"] += now - lap
+                self._check_finite_all(losses, "loss term")
+                lap, now = now, clock()
+                profile["diagnostics"] += now - lap
                 for optimizer in self.optimizers.values():
                     optimizer.zero_grad(set_to_none=True)
                 total.backward()
+                lap, now = now, clock()
+                profile["backward"] += now - lap
                 torch.nn.utils.clip_grad_norm_(self.groups["actor"], hp.max_grad_norm)
                 torch.nn.utils.clip_grad_norm_(self.groups["critic"], hp.max_grad_norm)
                 self.optimizers["actor"].step()
                 self.optimizers["critic"].step()
-                if update_multiplier and count < hp.multiplier_steps:
+                lap, now = now, clock()
+                profile["optimizer"] += now - lap
+                if step_multiplier:
                     if hp.multiplier_max_grad_norm is not None:
                         torch.nn.utils.clip_grad_norm_(self.groups["multiplier"], hp.multiplier_max_grad_norm)
                     self.optimizers["multiplier"].step()
-                for k, v in terms.items():
-                    sums[k] = sums.get(k, 0.0) + float(v.detach())
+                lap, now = now, clock()
+                profile["multiplier"] += now - lap
+                values = torch.stack([v.detach() for v in terms.values()]).tolist()
+                if not names:
+                    names, totals = list(terms), [0.0] * len(terms)
+                totals = [a + b for a, b in zip(totals, values, strict=True)]
+                profile["diagnostics"] += clock() - now
                 count += 1
+        lap = clock()
         self._check_finite({k: v for k, v in self.loss.named_parameters()}, "parameter")
-        return {k: v / count for k, v in sums.items()}
+        profile["diagnostics"] += clock() - lap
+        return {k: v / count for k, v in zip(names, totals, strict=True)}
+
+    def _check_finite_all(self, named: dict[str, torch.Tensor], what: str) -> None:
+        """:meth:`_check_finite` with one op when everything is finite (the usual case)."""
+        if not bool(torch.isfinite(torch.stack(list(named.values()))).all()):
+            self._check_finite(named, what)
 
     # ----------------------------------------------------------------------------------------- loop
     def train(self, max_iterations: int | None = None, on_iteration: Callable[[dict], None] | None = None) -> dict:
@@ -346,9 +422,11 @@ class Trainer:
         try:
             while self.iteration < stop:
                 started = time.perf_counter()
-                batch = next(self._batches)
+                batch = self.collector.collect()
                 collect_s = time.perf_counter() - started
                 ended = self.episodes.update(batch)
+                self.profile["collect"] = collect_s
+                self.profile["episodes"] = time.perf_counter() - started - collect_s
                 losses = self.update(batch)
                 self.iteration += 1
                 self.frames += batch.numel()
@@ -392,7 +470,7 @@ class Trainer:
         os.replace(temporary, self.output_dir / MULTIPLIER_SAMPLES_CSV)
 
     def close(self) -> None:
-        self.collector.shutdown()
+        """Nothing to release (kept for callers of TorchRL's collector API)."""
 
     def _metrics(self, batch: TensorDictBase, ended: list[dict], losses: dict[str, float], collect_s: float,
                  elapsed_s: float) -> dict[str, float]:

@@ -115,5 +115,27 @@ class TwinHighwayEnv(EnvBase):
             device=self.device,
         )
 
+    def step_and_reset_into(self, action: torch.Tensor, next_out: dict[str, torch.Tensor],
+                            observation_out: torch.Tensor) -> None:
+        """``step_and_maybe_reset`` written into the caller's tensors, without TensorDicts.
+
+        One step of every scene with ``action`` (B, 2); ``next_out`` gets the step's own "next"
+        entries (each a (B, ...) tensor, any strides: "observation", "reward", "done",
+        "terminated", "truncated" and :data:`INFO_KEYS`), ``observation_out`` (B, 30) the
+        observations to act on next: the new episode's where a scene ended. Scenes are respawned
+        in the simulator's step (``auto_reset``), which spawns scene b from its own random stream
+        exactly as a partial reset after the step does, so the floats are those of ``step`` then
+        ``reset`` with the done mask.
+        """
+        result = self.simulator.step(action.detach().cpu().numpy().astype(np.float64), auto_reset=True)
+        next_out["observation"].copy_(torch.from_numpy(result.final_observation))
+        for key in ("reward", *INFO_KEYS):
+            next_out[key].copy_(torch.from_numpy(getattr(result, key)).unsqueeze(-1))
+        next_out["terminated"].copy_(torch.from_numpy(result.terminated).unsqueeze(-1))
+        next_out["truncated"].copy_(torch.from_numpy(result.truncated).unsqueeze(-1))
+        next_out["done"].copy_(torch.from_numpy(result.terminated | result.truncated).unsqueeze(-1))
+        observation_out.copy_(torch.from_numpy(result.observation))
+        self._done[...] = False  # every scene that ended has been respawned
+
     def _set_seed(self, seed: int | None) -> None:
         self.simulator.seed(0 if seed is None else int(seed))
