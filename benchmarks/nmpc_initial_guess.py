@@ -49,6 +49,7 @@ import numpy as np
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.controller_factory import build_controller
 from srmpc.mpc.nmpc import NmpcSolver
+from srmpc.mpc.problem import OcpStepData
 from srmpc.output_folder import atomic_write_text
 from srmpc.sim.single_env import TwinScenarioEnv
 
@@ -176,8 +177,9 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference) -> l
                   "n_observed": n, "has_previous": bool(states["has_previous"][i])}
         for guess in GUESSES:
             guess_states, guess_inputs = guess_of(states, i, guess)
-            result = solver.solve(ego, last_input, others, tracking, guess_states, guess_inputs)
-            start = solver.initial_point(ego, others, guess_states, guess_inputs)
+            step = OcpStepData(ego, guess_states, guess_inputs, tracking, last_input, others)
+            result = solver.solve(step)
+            start = solver.initial_point(step)
             ipopt = reference.solve(ego, last_input, others, tracking, start.states, start.inputs, start.slacks[:n],
                                     start.sigmas)
             row = {"status": result.status, "converged": result.converged, "iterations": result.iterations,
@@ -454,7 +456,7 @@ def main() -> None:
     solver = NmpcSolver(ocp)
     reference = IpoptReference(ocp)
     ego, last_input, others, tracking = state_inputs(states, 0)
-    solver.solve(ego, last_input, others, tracking, *guess_of(states, 0, "policy_rollout"))  # compile
+    solver.solve(OcpStepData(ego, *guess_of(states, 0, "policy_rollout"), tracking, last_input, others))  # compile
     records = solve_all(states, solver, reference)
     table = summarize(records)
     rollout, constant = table["policy_rollout"], table["constant_velocity"]

@@ -101,7 +101,8 @@ def test_tanh_normal_arithmetic_equals_torchrl_tanh_normal():
     ours, theirs = tanh_normal.log_prob(action, loc, scale, *box), dist.log_prob(action)
     assert torch.equal(ours, theirs)
     our_grads = torch.autograd.grad(ours.sum(), (loc, log_std), retain_graph=True)
-    assert all(torch.equal(a, b) for a, b in zip(our_grads, torch.autograd.grad(theirs.sum(), (loc, log_std), retain_graph=True)))
+    their_grads = torch.autograd.grad(theirs.sum(), (loc, log_std), retain_graph=True)
+    assert all(torch.equal(a, b) for a, b in zip(our_grads, their_grads, strict=True))
     for shape in (torch.Size(()), torch.Size([1]), torch.Size([3])):
         torch.manual_seed(9)
         reference = dist.rsample_and_log_prob(shape)

@@ -233,7 +233,8 @@ class PPOLSILoss(ClipPPOLoss):
         of :data:`ROW_BLOCK`.
         """
         padding = -observation.shape[0] % ROW_BLOCK
-        rows = torch.cat([observation, observation.new_zeros(padding, observation.shape[-1])]) if padding else observation
+        rows = (torch.cat([observation, observation.new_zeros(padding, observation.shape[-1])]) if padding
+                else observation)
         return self.multiplier_network.module.logit(rows)[:observation.shape[0]]
 
     def loss_terms(self, observation: torch.Tensor, action: torch.Tensor, sample_log_prob: torch.Tensor,
@@ -277,7 +278,8 @@ class PPOLSILoss(ClipPPOLoss):
             cost_advantage = cost_advantage - cost_advantage.mean()
             gain_cost = torch.maximum(ratio * cost_advantage, clipped_ratio * cost_advantage)
             with torch.set_grad_enabled(multiplier_grad and torch.is_grad_enabled()):
-                logit = self.multiplier_network.module.logit(observation) if multiplier_logit is None else multiplier_logit
+                logit = (self.multiplier_network.module.logit(observation) if multiplier_logit is None
+                         else multiplier_logit)
                 multiplier = torch.nn.functional.softplus(logit).clamp(max=self.lambda_max)
             lam = multiplier.detach()
             out["loss_objective"] = (-(gain_reward - lam * gain_cost) / (1.0 + lam)).mean()

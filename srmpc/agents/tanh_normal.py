@@ -62,8 +62,12 @@ def log_prob(action: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor, cente
     return result + normal_log_prob(u, loc, scale).sum(-1)
 
 
+NO_SAMPLE_SHAPE = torch.Size()
+"""One draw per distribution (torch's default ``sample_shape``)."""
+
+
 def rsample_and_log_prob(loc: torch.Tensor, scale: torch.Tensor, center: torch.Tensor, half_range: torch.Tensor,
-                         sample_shape: torch.Size = torch.Size()) -> tuple[torch.Tensor, torch.Tensor]:
+                         sample_shape: torch.Size = NO_SAMPLE_SHAPE) -> tuple[torch.Tensor, torch.Tensor]:
     """``TanhNormal(loc, scale, low, high).rsample_and_log_prob(sample_shape)``: a draw and its log-probability."""
     eps = torch.empty(sample_shape + loc.shape, dtype=loc.dtype, device=loc.device).normal_()
     u = loc + eps * scale

@@ -160,7 +160,8 @@ class EpisodeTracker:
         nxt = batch.get("next")
         reward_prime = nxt.get("reward_prime").reshape(self.num_envs, -1)
         columns = torch.stack([
-            reward_prime, nxt.get("reward").reshape(self.num_envs, -1), nxt.get("event_cost").reshape(self.num_envs, -1),
+            reward_prime, nxt.get("reward").reshape(self.num_envs, -1),
+            nxt.get("event_cost").reshape(self.num_envs, -1),
             nxt.get("cost").reshape(self.num_envs, -1), torch.ones_like(reward_prime),
             nxt.get("vx").reshape(self.num_envs, -1),
         ]).double()  # (6, B, T) in KEYS order

@@ -32,6 +32,7 @@ from srmpc.controllers.outcomes import POLICY_FAILED, REFERENCE_OUTCOMES, episod
 from srmpc.controllers.srmpc import SceneSource
 from srmpc.mpc.nmpc import NmpcResult, NmpcSolver
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, ReferenceSource, StepOutcome
+from srmpc.mpc.problem import OcpStepData
 from srmpc.sim.mlp import MlpPolicy
 from srmpc.sim.rollout import rollout
 
@@ -109,7 +110,8 @@ class NmpcController:
             guesses.append(self.planner.default_reference(ego))
         candidates = []
         for states, inputs, source in guesses:
-            result = self.solver.solve(ego, self.last_input, predicted, self.tracking_reference, states, inputs)
+            result = self.solver.solve(OcpStepData(ego, states, inputs, self.tracking_reference, self.last_input,
+                                                   predicted))
             if result.converged:
                 candidates.append((result, source))
         if candidates:

@@ -15,7 +15,7 @@ import pytest
 from srmpc.mpc.nmpc import NlpPoint, NmpcSettings, NmpcSolver
 from srmpc.mpc.nmpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms, vehicle_frames
 from srmpc.mpc.nmpc.sqp_kernels import next_state, pairwise_sum
-from srmpc.mpc.problem import OcpConfig, collision_norms, nonlinear_plan_cost
+from srmpc.mpc.problem import OcpConfig, OcpStepData, collision_norms, nonlinear_plan_cost
 from srmpc.mpc.solvers import (
     RiccatiInteriorPointSolver,
     allocate_compact,
@@ -86,8 +86,8 @@ def test_converged_plan_is_feasible_and_costs_the_nonlinear_plan_cost(states, so
     """At convergence the plan satisfies the NLP's constraints and F = ``nonlinear_plan_cost`` of its inputs."""
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = planner_inputs(states, i)
-        result = solver.solve(ego, last_input, others, tracking, states[f"{guess}_states"][i],
-                              states[f"{guess}_inputs"][i])
+        result = solver.solve(OcpStepData(ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking,
+                                          last_input, others))
         assert result.converged, (i, result.status)
         assert result.primal_infeasibility <= solver.settings.primal_tolerance
         assert result.step_norms[-1] <= solver.settings.stationarity_tolerance
@@ -101,7 +101,8 @@ def test_converged_plan_is_feasible_and_costs_the_nonlinear_plan_cost(states, so
 def test_iteration_limit_is_a_status_not_an_error(states):
     ego, last_input, others, tracking = planner_inputs(states, 2)
     limited = NmpcSolver(OcpConfig(), NmpcSettings(max_iterations=1))
-    result = limited.solve(ego, last_input, others, tracking, states["cv_states"][2], states["cv_inputs"][2])
+    result = limited.solve(OcpStepData(ego, states["cv_states"][2], states["cv_inputs"][2], tracking, last_input,
+                                       others))
     assert result.status == "max_iterations" and result.iterations == 1 and not result.converged
 
 
@@ -114,9 +115,9 @@ def test_nmpc_agrees_with_ipopt_from_the_same_guess(states, solver):
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = planner_inputs(states, i)
         n = others.shape[1]
-        result = solver.solve(ego, last_input, others, tracking, states["rollout_states"][i],
-                              states["rollout_inputs"][i])
-        start = solver.initial_point(ego, others, states["rollout_states"][i], states["rollout_inputs"][i])
+        step = OcpStepData(ego, states["rollout_states"][i], states["rollout_inputs"][i], tracking, last_input, others)
+        result = solver.solve(step)
+        start = solver.initial_point(step)
         ipopt = reference.solve(ego, last_input, others, tracking, start.states, start.inputs, start.slacks[:n],
                                 start.sigmas)
         assert result.converged and ipopt.success, (i, result.status, ipopt.status)
@@ -135,8 +136,8 @@ def test_anderson_acceleration_reaches_the_plain_sqp_plan(states, solver):
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = planner_inputs(states, i)
         guess = states["cv_states"][i], states["cv_inputs"][i]
-        accelerated = solver.solve(ego, last_input, others, tracking, *guess)
-        reference = plain.solve(ego, last_input, others, tracking, *guess)
+        accelerated = solver.solve(OcpStepData(ego, *guess, tracking, last_input, others))
+        reference = plain.solve(OcpStepData(ego, *guess, tracking, last_input, others))
         assert accelerated.converged and reference.converged and reference.accelerated_steps == 0
         # both stop within ||p||_inf <= 1e-4 of the same KKT point; measured: states 2.0e-4, first input 7.1e-5
         np.testing.assert_allclose(accelerated.states, reference.states, atol=1e-3)
@@ -197,14 +198,15 @@ def test_compiled_nlp_functions_equal_the_numpy_formulas(states, solver, guess):
         ego, last_input, others, tracking = planner_inputs(states, i)
         for _ in range(20):
             point = random_point(rng, states, i, guess)
-            value, theta_1, theta_inf = solver.evaluate(point, ego, last_input, others, tracking)
+            value, theta_1, theta_inf = solver.evaluate(point, OcpStepData(
+                ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking, last_input, others))
             # measured: equal bit for bit (numpy's pairwise summation order, the same floating-point operations)
             assert value == pytest.approx(numpy_objective(solver, point, tracking, last_input), rel=1e-13)
             reference_1, reference_inf = numpy_infeasibility(solver, point, ego, others)
             assert theta_1 == pytest.approx(reference_1, rel=1e-13, abs=1e-15)
             assert theta_inf == pytest.approx(reference_inf, rel=1e-13, abs=1e-15)
         guess_states, guess_inputs = random_point(rng, states, i, guess).states, states[f"{guess}_inputs"][i]
-        start = solver.initial_point(ego, others, guess_states, guess_inputs)
+        start = solver.initial_point(OcpStepData(ego, guess_states, guess_inputs, tracking, last_input, others))
         lower = [-np.inf, config.lateral_bounds_m[0], -np.inf, config.speed_bounds_mps[0]]
         upper = [np.inf, config.lateral_bounds_m[1], np.inf, config.speed_bounds_mps[1]]
         np.testing.assert_array_equal(start.states[1:], np.clip(guess_states[1:], lower, upper))
@@ -253,7 +255,7 @@ def test_compact_subproblem_is_the_full_qp_bit_for_bit(states, warm):
     horizon = solver.config.horizon
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = planner_inputs(states, i)
-        solver.solve(ego, last_input, others, tracking, states["cv_states"][i], states["cv_inputs"][i])
+        solver.solve(OcpStepData(ego, states["cv_states"][i], states["cv_inputs"][i], tracking, last_input, others))
         qp, rows = solver.qp, solver.qp.n_observed  # the last subproblem; the memory holds its solution
         # both sides start warm (from the copied memory) or both cold: the NMPC itself starts its QPs cold
         full = RiccatiInteriorPointSolver(tolerance=solver.settings.qp_tolerance, warm_start=warm)

@@ -110,7 +110,7 @@ from srmpc.mpc.nmpc.sqp_kernels import (
     qp_candidate,
     screen,
 )
-from srmpc.mpc.problem import KinematicBicycle, LtvMpcQp, OcpConfig
+from srmpc.mpc.problem import KinematicBicycle, LtvMpcQp, OcpConfig, OcpStepData
 from srmpc.mpc.solvers import STATUS_SOLVED, RiccatiInteriorPointSolver, allocate_compact, solve_compact
 
 STATUS_CONVERGED = "converged"
@@ -452,24 +452,13 @@ class NmpcSolver:
                                  np.zeros((settings.anderson_depth + 1, size)))
         cycles_to_us(np.zeros(0))  # calibrates the cycle counter once, before the first timed solve
 
-    def _problem(self, measured_state, others, initial_states, initial_inputs) -> tuple:
-        """The arrays as the kernels read them, shapes checked (the kernels do not check bounds)."""
-        horizon = self.config.horizon
-        measured_state = np.ascontiguousarray(measured_state, dtype=np.float64)
-        others = np.ascontiguousarray(others, dtype=np.float64)
-        initial_states = np.ascontiguousarray(initial_states, dtype=np.float64)
-        initial_inputs = np.ascontiguousarray(initial_inputs, dtype=np.float64)
-        if others.ndim != 3 or others.shape[0] != horizon + 1 or others.shape[2] != 4:
-            raise ValueError(f"predicted_others must be (N + 1, V_obs, 4) = ({horizon + 1}, V_obs, 4), "
-                             f"not {others.shape}")
-        if others.shape[1] > self.config.max_vehicles:
-            raise ValueError(f"{others.shape[1]} vehicles exceed max_vehicles={self.config.max_vehicles}")
-        for name, array, shape in (("measured_state", measured_state, (4,)),
-                                   ("initial_states", initial_states, (horizon + 1, 4)),
-                                   ("initial_inputs", initial_inputs, (horizon, 2))):
-            if array.shape != shape:
-                raise ValueError(f"{name} must be {shape}, not {array.shape}")
-        return measured_state, others, initial_states, initial_inputs
+    def _check(self, step: OcpStepData) -> None:
+        """The kernels do not check bounds: the step's horizon and vehicle count against the OCP's (its arrays'
+        shapes against each other are ``OcpStepData``'s own check)."""
+        if step.horizon != self.config.horizon:
+            raise ValueError(f"the step's horizon N = {step.horizon} is not the OCP's {self.config.horizon}")
+        if step.n_observed > self.config.max_vehicles:
+            raise ValueError(f"{step.n_observed} vehicles exceed max_vehicles={self.config.max_vehicles}")
 
     def _frames(self, others: np.ndarray) -> np.ndarray:
         frames = np.empty(others.shape)
@@ -480,53 +469,47 @@ class NmpcSolver:
         return NlpPoint(*point_parts(w, self.config.horizon, n_obs))
 
     # ------------------------------------------------------------------ NLP functions
-    def initial_point(self, measured_state: np.ndarray, others: np.ndarray, initial_states: np.ndarray,
-                      initial_inputs: np.ndarray) -> NlpPoint:
-        """The guess clipped into the boxes, x_0 = x_hat, the smallest feasible slacks (module doc)."""
-        measured_state, others, initial_states, initial_inputs = self._problem(measured_state, others,
-                                                                               initial_states, initial_inputs)
-        n_obs = others.shape[1]
+    def initial_point(self, step: OcpStepData) -> NlpPoint:
+        """The guess (the step's ``linearization_states`` and ``linearization_inputs``) clipped into the boxes,
+        x_0 = x_hat, the smallest feasible slacks (module doc)."""
+        self._check(step)
+        n_obs = step.n_observed
         w = np.empty(point_size(self.config.horizon, n_obs))
-        initial_point(measured_state, self._frames(others), n_obs, initial_states, initial_inputs, self.nlp,
-                      self._scratch, w)
+        initial_point(step.measured_state, self._frames(step.predicted_others), n_obs, step.linearization_states,
+                      step.linearization_inputs, self.nlp, self._scratch, w)
         return self._point(w, n_obs)
 
-    def evaluate(self, point: NlpPoint, measured_state: np.ndarray, last_input: np.ndarray, others: np.ndarray,
-                 tracking_reference: np.ndarray) -> tuple[float, float, float]:
-        """(F, theta_1, theta_inf) at ``point`` (module doc), as the SQP evaluates them."""
-        horizon, n_obs = self.config.horizon, others.shape[1]
+    def evaluate(self, point: NlpPoint, step: OcpStepData) -> tuple[float, float, float]:
+        """(F, theta_1, theta_inf) at ``point`` (module doc), as the SQP evaluates them, for the step's x_hat, u_hat,
+        x^ref and predicted vehicles (its guess is not read)."""
+        self._check(step)
+        horizon, n_obs = self.config.horizon, step.n_observed
         w = np.concatenate([np.ravel(point.states), np.ravel(point.inputs), np.ravel(point.slacks),
                             np.ravel(point.sigmas)]).astype(np.float64)
         if w.size != point_size(horizon, n_obs):
             raise ValueError(f"the point has {w.size} values, not {point_size(horizon, n_obs)}")
-        frames = self._frames(np.ascontiguousarray(others, dtype=np.float64))
-        value = objective(w, horizon, n_obs, np.ascontiguousarray(tracking_reference, dtype=np.float64),
-                          np.ascontiguousarray(last_input, dtype=np.float64), self.nlp, self._scratch.terms)
-        theta_1, theta_inf = infeasibility(w, horizon, n_obs, np.ascontiguousarray(measured_state, dtype=np.float64),
-                                           frames, self.nlp, self._scratch)
+        frames = self._frames(step.predicted_others)
+        value = objective(w, horizon, n_obs, step.tracking_reference, step.last_input, self.nlp, self._scratch.terms)
+        theta_1, theta_inf = infeasibility(w, horizon, n_obs, step.measured_state, frames, self.nlp, self._scratch)
         return float(value), float(theta_1), float(theta_inf)
 
     # ------------------------------------------------------------------ SQP
-    def solve(self, measured_state: np.ndarray, last_input: np.ndarray, predicted_others: np.ndarray,
-              tracking_reference: np.ndarray, initial_states: np.ndarray, initial_inputs: np.ndarray) -> NmpcResult:
-        """Solve the NLP from the initial guess (module doc).
-
-        Args:
-            measured_state: x_hat (4,); last_input: u_hat (2,).
-            predicted_others: (N + 1, V_obs, 4) other vehicles, V_obs <= ``config.max_vehicles``.
-            tracking_reference: (N + 1, 4) x^ref (row 0 unused).
-            initial_states, initial_inputs: the guess (N + 1, 4), (N, 2).
+    def solve(self, step: OcpStepData) -> NmpcResult:
+        """Solve the NLP from the initial guess (module doc): the step's ``linearization_states`` and
+        ``linearization_inputs`` are the guess, its x_hat, u_hat, x^ref and predicted vehicles (V_obs <=
+        ``config.max_vehicles``) the problem's, as for the QP (``OcpStepData``).
 
         ``qp`` keeps the last subproblem (its stage-wise arrays; ``qp_solver.solve(qp)`` solves it again).
         """
         start = time.perf_counter()
-        measured_state, others, initial_states, initial_inputs = self._problem(
-            measured_state, predicted_others, initial_states, initial_inputs)
-        n_obs = others.shape[1]
+        self._check(step)
+        others, initial_states, initial_inputs = (step.predicted_others, step.linearization_states,
+                                                  step.linearization_inputs)
+        n_obs = step.n_observed
         qp = self.qp
-        qp.measured_state[:] = measured_state
-        qp.last_input[:] = last_input
-        qp.tracking_reference[:] = tracking_reference
+        qp.measured_state[:] = step.measured_state
+        qp.last_input[:] = step.last_input
+        qp.tracking_reference[:] = step.tracking_reference
         w = np.empty(point_size(self.config.horizon, n_obs))
         record = self._record
         (status, iterations, line_searches, value, theta_1, theta_inf, stationarity, penalty,
