@@ -134,20 +134,18 @@ def test_each_evaluation_directory_holds_its_runs_config():
     for instance, overrides, _ in EVALUATION_RUNS:
         cfg = compose_config(overrides)
         composed = identity_yaml(to_objects(cfg), recorded_yaml(cfg))
+        named = dict(o.lstrip("+").split("=", 1) for o in overrides)  # its own folder, by its name
+        assert cfg.evaluation.output_dir == f"results/evaluation/{named['experiment']}_{named['scenario']}", instance
         directory = ROOT / cfg.evaluation.output_dir
         assert (directory / "config.yaml").read_text() == composed, f"{instance}: not the config of {directory}"
 
 
 def test_every_published_experiment_is_a_cell_in_its_own_folder():
-    """Stage ``evaluate`` runs every published experiment (pipelines/experiments.py) in both traffic levels, each
-    into results/evaluation/<experiment>_<traffic>; its conf/ dependence is its composed identity (params)."""
+    """Stage ``evaluate`` runs every published experiment (pipelines/experiments.py) in both traffic levels (each
+    into its own folder: the test above); its conf/ dependence is its composed identity (params)."""
     from pipelines.experiments import TRAFFIC, published_experiments
 
     stage = DVC_YAML["stages"]["evaluate"]
     assert sorted(stage["matrix"]["experiment"]) == published_experiments()
     assert stage["matrix"]["traffic"] == list(TRAFFIC)
     assert not any(dep.startswith("conf") for dep in stage["deps"])
-    for instance, overrides, _ in EVALUATION_RUNS:
-        named = dict(o.lstrip("+").split("=", 1) for o in overrides)
-        directory = compose_config(overrides).evaluation.output_dir
-        assert directory == f"results/evaluation/{named['experiment']}_{named['scenario']}", instance

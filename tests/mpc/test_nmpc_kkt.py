@@ -14,7 +14,7 @@ import pytest
 
 from srmpc.mpc.nmpc import NmpcSettings, NmpcSolver
 from srmpc.mpc.nmpc.kkt_residual import SCALE_THRESHOLD, scaled_residual
-from srmpc.mpc.problem import OcpConfig
+from srmpc.mpc.problem import OcpConfig, OcpStepData
 
 STATES = Path(__file__).parent.parent / "data" / "nmpc_states.npz"
 TIGHT = NmpcSettings(primal_tolerance=1e-9, stationarity_tolerance=1e-9, max_iterations=300, qp_tolerance=1e-10)
@@ -31,8 +31,8 @@ def states() -> dict[str, np.ndarray]:
 
 def solve(solver, states, i):
     n = int(states["n_observed"][i])
-    return solver.solve(states["ego"][i], states["last_input"][i], states["others"][i][:, :n], states["tracking"][i],
-                        states["rollout_states"][i], states["rollout_inputs"][i])
+    return solver.solve(OcpStepData(states["ego"][i], states["rollout_states"][i], states["rollout_inputs"][i],
+                                    states["tracking"][i], states["last_input"][i], states["others"][i][:, :n]))
 
 
 def test_the_residual_vanishes_at_a_tightly_converged_plan(states):
