@@ -82,8 +82,9 @@ def collect(resamples: int, seed: int) -> tuple[dict, dict]:
     points: dict = {t: {m: [] for m in (*CURVES, *SINGLE)} for t in TRAFFIC}
     episodes: dict[str, pd.DataFrame] = {}
     experiments = {**CURVE_EXPERIMENTS, **{m: [f"table/{m}"] for m in SINGLE}}
+    required = {*TABLE_POINT.values(), *(f"table/{m}" for m in SINGLE)}
     for traffic in TRAFFIC:  # the table's runs are required, the sweep's points are those that exist
-        found = [(run_of(e, traffic) if e.startswith(("table/", "variants/")) else runs().get((e, traffic)), m)
+        found = [(run_of(e, traffic) if e in required else runs().get((e, traffic)), m)
                  for m, names in experiments.items() for e in names]
         found = sorted((directory, method) for directory, method in found if directory is not None)
         for directory, method in found:  # in folder order, as the sort below keeps ties
