@@ -36,8 +36,10 @@ reproduce: install
 videos: install
 	dvc repro --single-item videos
 
-## The default test suite (slow tests excluded), on every core (pytest-xdist, one test file per worker at a time).
+## The default test suite (slow tests excluded), on every core (pytest-xdist, one test file per worker at a time),
+## after numba's cache is filled once (srmpc/precompile.py), so that the workers do not each compile the same kernels.
 test: install
+	python -m srmpc.precompile
 	python -m pytest -n auto --dist loadfile
 
 ## Long tests (marked slow).
