@@ -16,7 +16,8 @@ core, measured in this run, alternating ``--rounds`` times (ours PPO, ours PPO-L
 that a change in machine load hits all three: end-to-end env steps per second over the same number
 of timed iterations after the same warm-up, their medians over rounds, the ratios of the medians
 (``sb3_over_ours``: SB3 / our PPO; ``ours_over_sb3`` and ``ours_ppo_lsi_over_sb3``, the target
-being >= 1), and each one's split into collection and update (seconds per iteration; SB3's
+being >= 1; per round and the t-interval of their mean over the paired rounds: ``*_per_round``,
+``*_ci95``), and each one's split into collection and update (seconds per iteration; SB3's
 ``collect_rollouts`` and ``train``). The same rates per second of the process's CPU time
 (``*_per_cpu_s``, ``*_over_sb3_cpu``) are less disturbed when other processes share the core.
 Pin the run to one idle core: ``taskset -c 1 python benchmarks/train_throughput.py``.
@@ -33,6 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from srmpc.confidence_intervals import t_interval
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.sb3_ppo.training import IMPLEMENTATION
 from srmpc.stages.train import make_training_env
@@ -103,6 +105,11 @@ def time_sb3(config, warmup: int, iterations: int) -> tuple[float, dict[str, flo
     return frames / wall, split, frames / cpu
 
 
+def ratios(ours: list[tuple], sb3: list[tuple]) -> list[float]:
+    """Env steps/s of ours over SB3's, round by round."""
+    return [a[0] / b[0] for a, b in zip(ours, sb3, strict=True)]
+
+
 def median_split(splits: list[dict[str, float]]) -> dict[str, float]:
     """Section by section median over rounds [s per iteration]."""
     return {k: statistics.median(s[k] for s in splits) for k in splits[0]}
@@ -163,6 +170,11 @@ def main() -> None:
             "ours_env_steps_per_cpu_s": cpu["ours"], "ours_ppo_lsi_env_steps_per_cpu_s": cpu["ours_ppo_lsi"],
             "sb3_env_steps_per_cpu_s": cpu["sb3"], "ours_over_sb3_cpu": cpu["ours"] / cpu["sb3"],
             "ours_ppo_lsi_over_sb3_cpu": cpu["ours_ppo_lsi"] / cpu["sb3"],
+            # Rounds are paired (ours, ours PPO-L-SI and SB3 back to back): the ratio per round and the t-interval
+            # of its mean over rounds, so that a verdict on the 1.0x target rests on an interval
+            "ours_over_sb3_per_round": ratios(ours, sb3), "ours_over_sb3_ci95": t_interval(ratios(ours, sb3)),
+            "ours_ppo_lsi_over_sb3_per_round": ratios(ours_lsi, sb3),
+            "ours_ppo_lsi_over_sb3_ci95": t_interval(ratios(ours_lsi, sb3)),
             "ours_rounds": [r[0] for r in ours], "ours_ppo_lsi_rounds": [r[0] for r in ours_lsi],
             "sb3_rounds": [r[0] for r in sb3], "agent": "ppo", "num_envs": ppo.agent.num_envs,
             "frames_per_batch": ppo.agent.frames_per_batch, "minibatch_size": ppo.agent.minibatch_size,
