@@ -207,8 +207,15 @@ def _queued_job_ids() -> set[str] | None:
     return {line.strip() for line in listing.splitlines() if line.strip()}
 
 
+TRACE_SEPARATOR = "-" * 22
+"""The line around the traceback in submitit's FailedJobError message."""
+
+
 def _last_line(text: str) -> str:
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    """The job's exception in one line: the traceback's last line (submitit's FailedJobError puts the trace
+    between two :data:`TRACE_SEPARATOR` lines), else the message's last line."""
+    parts = text.split(TRACE_SEPARATOR)
+    lines = [line.strip() for line in (parts[1] if len(parts) >= 3 else text).splitlines() if line.strip()]
     return lines[-1] if lines else "no message"
 
 
@@ -277,10 +284,15 @@ class CommandJob:
 
     def __call__(self) -> int:
         sys.stdout.flush()
-        self._process = subprocess.Popen(self.command, env={**os.environ, **self.environment})
+        self._process = subprocess.Popen(self.command, env={**os.environ, **self.environment},
+                                         stderr=subprocess.PIPE, text=True)
+        last = ""
+        for line in self._process.stderr:  # copied to the job's log; the last line names a failure
+            sys.stderr.write(line)
+            last = line.strip() or last
         code = self._process.wait()
         if code != 0:
-            raise RuntimeError(f"exit {code}: {' '.join(self.command[1:])}")
+            raise RuntimeError(f"exit {code}: {last or 'no error output'}")
         return code
 
     def checkpoint(self):
