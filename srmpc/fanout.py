@@ -311,8 +311,9 @@ class CommandJob:
 def shard_ranges(first_episode: int, episodes: int, shard_episodes: int) -> list[tuple[int, int]]:
     """The shards of episodes ``first_episode .. episodes-1``: shard k holds ``[k * shard_episodes, (k + 1) *
     shard_episodes)``, cut to the episodes left; the boundaries stay put when a rerun resumes mid-shard."""
-    return [(max(start, first_episode), min(start + shard_episodes, episodes))
-            for start in range(first_episode // shard_episodes * shard_episodes, episodes, shard_episodes)]
+    starts = range(first_episode // shard_episodes * shard_episodes, episodes, shard_episodes)
+    return [(max(start, first_episode), min(start + shard_episodes, episodes)) for start in starts
+            if max(start, first_episode) < episodes]
 
 
 def complete_rows(path: Path) -> list[EpisodeRecord]:
