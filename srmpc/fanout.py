@@ -191,7 +191,7 @@ def _executor(settings: FanoutSettings, folder: Path):
     parameters = {"partition": settings.partition, "time": settings.timeout_min,
                   "cpus_per_task": settings.cpus_per_task, "mem": f"{settings.mem_gb}GB",
                   "signal_delay_s": settings.signal_delay_s, "setup": [*settings.setup, *environment],
-                  "job_name": "srmpc"}
+                  "job_name": "srmpc", "additional_parameters": {"open-mode": "append"}}  # a requeue keeps the log
     parameters |= {k: getattr(settings, k) for k in ("account", "qos") if getattr(settings, k)}
     executor.update_parameters(**parameters)
     return executor

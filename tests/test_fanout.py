@@ -159,7 +159,7 @@ def _slurm(tmp_path, shard_episodes=2, **extra):
 @needs_slurm
 @pytest.mark.parametrize("controller", ["lane_keeping", "ltv_mpc"])
 def test_slurm_shards_write_the_local_rows(tmp_path, controller):
-    config = _config(controller, 5)
+    config = _config(controller, 5 if controller == "lane_keeping" else 3)
     local = run_evaluation(config, "same\n", tmp_path / "local", Run(None), progress=False)
     slurm = run_evaluation(config, "same\n", tmp_path / "slurm", Run(None), progress=False, fanout=_slurm(tmp_path))
     assert slurm == local
@@ -178,8 +178,8 @@ def test_a_failed_slurm_job_is_one_line_with_its_log_after_the_rows_before_it(tm
     assert f"ValueError: scripted failure at seed {FAILING_SEED}" in message
     log = Path(message.rsplit("log: ", 1)[1])
     assert log.is_file() and "scripted failure" in log.read_text()
-    assert [r.episode for r in handed_on] == [0, 1]
-    assert handed_on == evaluate(*_scripted_setup(), 2, FAILING_SEED - 3)
+    assert [r.episode for r in handed_on] == [0, 1, 2]  # episode 2 finished in the failing shard before episode 3
+    assert handed_on == evaluate(*_scripted_setup(), 3, FAILING_SEED - 3)
 
 
 @pytest.mark.slow
@@ -215,8 +215,9 @@ def test_a_slurm_shard_signalled_before_its_time_limit_is_requeued_and_resumes(t
             process.kill()
     assert process.returncode == 0, output[-3000:]
     assert (out / EPISODES_NAME).read_text() == (tmp_path / "local" / EPISODES_NAME).read_text()
-    log = (shard_files[0].parent / "jobs" / job / f"{job}_0_log.out").read_text()
-    assert log.count("Starting with JobEnvironment") == 2 and "Requeued" in log or "requeue" in log.lower(), log
+    assert "Restarts=1" in subprocess.run(["scontrol", "show", "job", job], capture_output=True, text=True).stdout
+    log = (shard_files[0].parent / "jobs" / job / f"{job}_0_log.out").read_text()  # both runs (--open-mode=append)
+    assert log.count("Starting with JobEnvironment") == 2 and "Calling checkpoint method" in log, log
 
 
 @pytest.mark.slow
@@ -235,7 +236,7 @@ def test_a_toy_training_through_slurm_equals_the_local_one(tmp_path):
         assert results[name].returncode == 0, results[name].stdout[-3000:] + results[name].stderr[-3000:]
     assert "slurm job" in results["slurm"].stdout and "exit 0" in results["slurm"].stdout
     summaries = [json.loads((tmp_path / name / "summary.json").read_text()) for name in ("local", "slurm")]
-    assert summaries[0] == summaries[1]
+    assert {**summaries[0], "wall_s": None} == {**summaries[1], "wall_s": None}  # all but the wall time
     policies = [torch.load(tmp_path / name / "policy.pt", weights_only=False) for name in ("local", "slurm")]
     assert _tensors(policies[0]) == _tensors(policies[1])
 
