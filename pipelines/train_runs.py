@@ -13,6 +13,10 @@ a rerun resumes each from ``last.pt`` (finished runs are skipped by the trainer 
 
     python -m pipelines.train_runs --jobs 2 "agent=ppo agent.seed=0 agent.output_dir=..." "agent=..."
 
+With ``SRMPC_FANOUT`` set (``srmpc.fanout``, docs/scaling.md), each training is a job instead, on SLURM or a
+local process (``--jobs`` is then the settings' ``max_jobs``): the same command in the job, its output in the
+job's log (``<work_dir>/training/<job id>/``), requeued at a time limit after saving ``last.pt``.
+
 Runs are named three ways, combined in this order (DVC's stages name them, conf/ defines them):
 
 - positional: one training's overrides each, e.g. ``"agent=ppo_lsi"``; a run that names its stage
@@ -115,6 +119,29 @@ def run_trainings(runs: list[str], jobs: int, python: str = sys.executable) -> l
             signal.signal(signum, handler)
 
 
+def run_training_jobs(runs: list[str], settings, python: str = sys.executable) -> list[Finished]:
+    """Each of ``runs`` as a job of ``settings`` (``srmpc.fanout.FanoutSettings``); when one fails, the others
+    still finish. SIGTERM or Ctrl-C cancels the jobs (SLURM sends them SIGTERM: each saves ``last.pt``)."""
+    from srmpc.fanout import CommandJob, run_jobs
+
+    tasks = [CommandJob([python, "-m", "srmpc", *training_command(overrides)], {"TQDM_DISABLE": "1"})
+             for overrides in runs]
+    finished: list[Finished | None] = [None] * len(runs)
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
+    try:
+        for end in run_jobs(settings, Path(settings.work_dir) / "training", tasks):
+            if end is None:
+                continue
+            name = output_dir_of(runs[end.index])
+            status = "exit 0" if end.error is None else f"failed: {end.error}"
+            print(f"[{name}] {settings.executor.value} job {end.job_id} {status} after {end.wall_s:.0f} s; "
+                  f"log: {end.log}", flush=True)
+            finished[end.index] = Finished(runs[end.index], 0 if end.error is None else 1, end.wall_s, str(end.log))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    return [f for f in finished if f is not None]
+
+
 def parse_arguments(argv: list[str] | None = None) -> tuple[list[str], int]:
     """The trainings this command line names (module docstring) and how many to run at once."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -134,10 +161,27 @@ def parse_arguments(argv: list[str] | None = None) -> tuple[list[str], int]:
     return runs, args.jobs or available_cores()
 
 
+FANOUT_VARIABLE = "SRMPC_FANOUT"
+"""srmpc.fanout.FANOUT_VARIABLE, named here so that a run without it does not import srmpc (2 s)."""
+
+
 def main() -> None:
     runs, jobs = parse_arguments()
-    print(f"{len(runs)} trainings, {jobs} at a time", flush=True)
-    finished = run_trainings(runs, jobs)
+    settings = None
+    if os.environ.get(FANOUT_VARIABLE):
+        from srmpc.config.compose import ConfigError
+        from srmpc.fanout import settings_from_environment
+
+        try:
+            settings = settings_from_environment()
+        except ConfigError as error:
+            raise SystemExit(f"train_runs: {error}") from None
+    if settings is None:
+        print(f"{len(runs)} trainings, {jobs} at a time", flush=True)
+        finished = run_trainings(runs, jobs)
+    else:
+        print(f"{len(runs)} trainings, {settings.executor.value} jobs, {settings.max_jobs} at a time", flush=True)
+        finished = run_training_jobs(runs, settings)
     failed = [f for f in finished if f.returncode != 0]
     if failed:
         names = ", ".join(f"{output_dir_of(f.overrides)} (exit {f.returncode})" for f in failed)

@@ -33,7 +33,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from srmpc.config.compose import ConfigError, compose_config, recorded_yaml, to_objects, with_experiment_name
 from srmpc.config.schema import Config, Stage, controller_label, register_schema
-from srmpc.errors import FileFault, describe_file_fault
+from srmpc.errors import FileFault, JobFailed, describe_file_fault
 from srmpc.output_lock import OutputDirectoryBusy, OutputDirectoryUnwritable, exclusive_output_dir
 from srmpc.tracking import TrackingStoreUnusable, check_tracking_store, tracked_run
 
@@ -86,7 +86,10 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
         run_name = f"{config.experiment}_{config.scenario.traffic}"  # its identity, as its folder's name
     else:
         run_name = f"{config.stage.value}-{controller_label(config.controller)}-{config.scenario.traffic}"
+    from srmpc.fanout import settings_from_environment
     from srmpc.sweep import in_multirun, prepare_tracking_store
+
+    fanout = settings_from_environment() if config.stage is Stage.evaluate else None  # SRMPC_FANOUT: one line
 
     # A sweep's jobs, or trainings side by side (pipelines/train_runs.py), start together: the first
     # creates the MLflow store (and, in a sweep, the experiment) under a lock; two creators would collide.
@@ -102,7 +105,7 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
         if config.stage is Stage.evaluate:
             from srmpc.stages.evaluate import run_evaluation
 
-            return run_evaluation(config, config_yaml, stage_dir, active_run)
+            return run_evaluation(config, config_yaml, stage_dir, active_run, fanout=fanout)
         if config.stage is Stage.train:
             from srmpc.stages.train import run_training
 
@@ -129,6 +132,9 @@ def hydra_main(cfg: DictConfig) -> None:
         _refuse(error)
     except (FileFault, OSError) as error:  # an unreadable policy.pt, an unwritable output directory
         print(f"srmpc: error: {describe_file_fault(error)}", file=sys.stderr)
+        sys.exit(EXIT_RUN_ERROR)
+    except JobFailed as error:  # SRMPC_FANOUT: a shard's job failed (its log named)
+        print(f"srmpc: error: {error}", file=sys.stderr)
         sys.exit(EXIT_RUN_ERROR)
     from srmpc.result_table import print_result
 

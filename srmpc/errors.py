@@ -7,6 +7,11 @@ class FileFault(RuntimeError):
     """A file a run needs cannot be read or written; the message is one line that names the file."""
 
 
+class JobFailed(RuntimeError):
+    """A job the run fanned out (``srmpc.fanout``: an evaluation shard, a training) failed; the message is one
+    line naming the job and its log."""
+
+
 def describe_file_fault(error: BaseException) -> str:
     """One line naming the path of a :class:`FileFault` or an ``OSError``."""
     if isinstance(error, OSError) and error.filename is not None:

@@ -46,7 +46,7 @@ FLOOR = {
     "controllers": 4, "sb3_ppo": 4,
     "episode_loop": 5, "video": 5, "result_table": 5,
     "config": 6, "output_folder": 6,
-    "sweep": 7, "controller_factory": 7, "tracking": 7,
+    "sweep": 7, "controller_factory": 7, "tracking": 7, "fanout": 7,
     "stages": 8,
     "__main__": 9,
 }

@@ -26,6 +26,7 @@ from srmpc.config.schema import Config, controller_label
 from srmpc.controller_factory import make_env_and_controller, policy_file
 from srmpc.controllers.outcomes import OUTCOME_KEYS
 from srmpc.episode_loop import EpisodeRecord, evaluate, evaluate_in_workers
+from srmpc.fanout import FanoutSettings, evaluate_in_jobs, shard_dir
 from srmpc.metrics import aggregate_metrics
 from srmpc.output_folder import (
     CONFIG_NAME,
@@ -108,18 +109,22 @@ def prepare_output_dir(output_dir: Path, config_yaml: str) -> list[EpisodeRecord
     return finished
 
 
-def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run, progress: bool = True) -> dict:
+def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run, progress: bool = True,
+                   fanout: FanoutSettings | None = None) -> dict:
     """Evaluate, appending to ``output_dir``; returns the summary written to ``summary.json``.
 
-    The episodes run in ``evaluation.workers`` processes (:func:`evaluation_workers`); this process
+    The episodes run in ``evaluation.workers`` processes (:func:`evaluation_workers`), or, with ``fanout``
+    settings, in shards, one job each (SLURM or local, :func:`srmpc.fanout.evaluate_in_jobs`); this process
     alone writes ``episodes.csv`` (in episode order, each row fsync'd), logs to MLflow and shows the
-    progress bar, so the file is the same, and resumes the same, whatever the number of workers."""
+    progress bar, so the file is the same, and resumes the same, whatever runs the episodes."""
     evaluation_workers(config, 1)  # a bad evaluation.workers fails before anything is written
     env, controller = make_env_and_controller(config)  # also in the parent: a bad policy fails here, in one line
-    finished = prepare_output_dir(output_dir, identity_yaml(config, config_yaml))
+    identity = identity_yaml(config, config_yaml)
+    finished = prepare_output_dir(output_dir, identity)
     episodes = config.evaluation.episodes
     workers = evaluation_workers(config, episodes - len(finished))
-    run.set_tags({"evaluation_workers": str(workers)})
+    run.set_tags({"evaluation_workers": str(workers)} if fanout is None else
+                 {"evaluation_fanout": fanout.executor.value, "evaluation_shard_episodes": str(fanout.shard_episodes)})
     if finished:
         run.set_tags({"resumed_from_episode": str(len(finished))})
     csv_handle = (output_dir / EPISODES_NAME).open("a", newline="")
@@ -140,7 +145,11 @@ def run_evaluation(config: Config, config_yaml: str, output_dir: Path, run: Run,
             bar.update(1)
 
     try:
-        if workers > 1:
+        if fanout is not None:
+            setup = functools.partial(make_env_and_controller, config)
+            rows_dir = shard_dir(Path(fanout.work_dir), output_dir, identity)
+            new = evaluate_in_jobs(setup, episodes, config.evaluation.seed, fanout, rows_dir, on_episode, len(finished))
+        elif workers > 1:
             setup = functools.partial(make_env_and_controller, config)
             new = evaluate_in_workers(setup, episodes, config.evaluation.seed, workers, on_episode, len(finished))
         else:
