@@ -48,7 +48,7 @@ FLOOR = {
     "config": 6, "output_folder": 6,
     "sweep": 7, "controller_factory": 7, "tracking": 7, "fanout": 7,
     "stages": 8,
-    "__main__": 9,
+    "__main__": 9, "precompile": 9,
 }
 
 
