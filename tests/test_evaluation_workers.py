@@ -14,6 +14,7 @@ from srmpc.episode_loop import evaluate, evaluate_in_workers
 from srmpc.output_folder import read_finished_episodes
 from srmpc.stages.evaluate import evaluation_workers, run_evaluation
 from srmpc.tracking import Run
+from tests.scripted_episodes import FAILING_SEED, SLOW_SEED, scripted_setup
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -54,64 +55,17 @@ def test_workers_default_to_every_core_and_at_most_one_per_episode():
         evaluation_workers(_config("lane_keeping", -1, 10), 10)
 
 
-# A scripted scenario: episode length and wall time depend on the seed, so workers finish out of order.
-SLOW_SEED, FAILING_SEED = 10, 22
-
-
-class _Unwrapped:
-    measurement = None
-
-
-class _ScriptedEnv:
-    """Episode from seed s: s % 3 + 1 steps; SLOW_SEED takes 2 s (it finishes after later episodes);
-    FAILING_SEED raises after 1 s (after the episodes before it)."""
-
-    unwrapped = _Unwrapped()
-
-    def reset(self, seed):
-        if seed in (SLOW_SEED, FAILING_SEED):
-            time.sleep(2.0 if seed == SLOW_SEED else 1.0)
-        if seed == FAILING_SEED:
-            raise ValueError(f"scripted failure at seed {seed}")
-        self.left, self.seed = seed % 3 + 1, seed
-        return 0.0, {}
-
-    def step(self, action):
-        self.left -= 1
-        info = {"reward_prime": -float(self.seed), "event_cost": 0.0, "vx": 20.0 + action, "cost": 0.0,
-                "termination": "collision"}
-        return 0.0, 0.0, False, self.left == 0, info
-
-    def close(self):
-        pass
-
-
-class _ScriptedController:
-    def reset(self):
-        pass
-
-    def act(self, observation, measurement):
-        return 1.0
-
-    def episode_outcomes(self):
-        return {"solved": 1}
-
-
-def _scripted_setup():
-    return _ScriptedEnv(), _ScriptedController()
-
-
 def test_episodes_finishing_out_of_order_reach_on_episode_in_episode_order():
     seen = []
-    records = evaluate_in_workers(_scripted_setup, 6, SLOW_SEED, 2, on_episode=lambda r: seen.append(r.episode))
+    records = evaluate_in_workers(scripted_setup, 6, SLOW_SEED, 2, on_episode=lambda r: seen.append(r.episode))
     assert seen == list(range(6))
-    assert records == evaluate(*_scripted_setup(), 6, SLOW_SEED)
+    assert records == evaluate(*scripted_setup(), 6, SLOW_SEED)
 
 
 def test_a_failing_episode_stops_the_workers_after_the_finished_prefix():
     seen = []
     with pytest.raises(ValueError, match=f"seed {FAILING_SEED}"):
-        evaluate_in_workers(_scripted_setup, 6, FAILING_SEED - 2, 2, on_episode=lambda r: seen.append(r.episode))
+        evaluate_in_workers(scripted_setup, 6, FAILING_SEED - 2, 2, on_episode=lambda r: seen.append(r.episode))
     assert seen == [0, 1]
 
 

@@ -30,6 +30,7 @@ from srmpc.fanout import (
 from srmpc.output_folder import EPISODES_NAME
 from srmpc.stages.evaluate import run_evaluation
 from srmpc.tracking import Run
+from tests.scripted_episodes import FAILING_SEED, scripted_setup
 
 ROOT = Path(__file__).resolve().parents[1]
 NO_SLURM = "no SLURM here (no sbatch on PATH): bash ../shared/tools/local_slurm.sh start runs one on localhost"
@@ -78,7 +79,7 @@ def test_shards_keep_their_boundaries_and_a_torn_row_is_not_read(tmp_path):
     assert shard_ranges(3, 10, 4) == [(3, 4), (4, 8), (8, 10)]  # resumed mid-shard: the same boundaries
     assert shard_ranges(10, 10, 4) == []
     path = tmp_path / "shard.csv"
-    EvaluationShard(_scripted_setup, 0, 3, 5, path)()
+    EvaluationShard(scripted_setup, 0, 3, 5, path)()
     text = path.read_text()
     path.write_text(text[:-3])  # the last row torn mid-value: it still parses, but has no line end
     assert [r.episode for r in complete_rows(path)] == [0, 1]
@@ -107,48 +108,6 @@ def test_a_local_job_resumes_a_shard_and_finished_shards_are_not_rerun(tmp_path)
     assert not list(rows.glob("shard_*.csv"))  # handed on, then removed
 
 
-# A scripted scenario (as in test_evaluation_workers): episode from seed s has s % 3 + 1 steps; FAILING_SEED raises.
-FAILING_SEED = 22
-
-
-class _Unwrapped:
-    measurement = None
-
-
-class ScriptedEnv:
-    unwrapped = _Unwrapped()
-
-    def reset(self, seed):
-        if seed == FAILING_SEED:
-            raise ValueError(f"scripted failure at seed {seed}")
-        self.left, self.seed = seed % 3 + 1, seed
-        return 0.0, {}
-
-    def step(self, action):
-        self.left -= 1
-        info = {"reward_prime": -float(self.seed), "event_cost": 0.0, "vx": 20.0 + action, "cost": 0.0,
-                "termination": "collision"}
-        return 0.0, 0.0, False, self.left == 0, info
-
-    def close(self):
-        pass
-
-
-class ScriptedController:
-    def reset(self):
-        pass
-
-    def act(self, observation, measurement):
-        return 1.0
-
-    def episode_outcomes(self):
-        return {"solved": 1}
-
-
-def _scripted_setup():
-    return ScriptedEnv(), ScriptedController()
-
-
 # ------------------------------------------------------------------------------------- real SLURM
 def _slurm(tmp_path, shard_episodes=2, **extra):
     return FanoutSettings(executor=Executor.slurm, partition="cpu", shard_episodes=shard_episodes, max_jobs=4,
@@ -172,14 +131,14 @@ def test_a_failed_slurm_job_is_one_line_with_its_log_after_the_rows_before_it(tm
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), str(ROOT / "tests")]))  # the job imports this file
     handed_on = []
     with pytest.raises(JobFailed) as error:
-        evaluate_in_jobs(_scripted_setup, 6, FAILING_SEED - 3, _slurm(tmp_path), tmp_path / "rows", handed_on.append)
+        evaluate_in_jobs(scripted_setup, 6, FAILING_SEED - 3, _slurm(tmp_path), tmp_path / "rows", handed_on.append)
     message = str(error.value)
     assert "\n" not in message and "evaluation shard of episodes 2-3 (slurm job" in message
     assert f"ValueError: scripted failure at seed {FAILING_SEED}" in message
     log = Path(message.rsplit("log: ", 1)[1])
     assert log.is_file() and "scripted failure" in log.read_text()
     assert [r.episode for r in handed_on] == [0, 1, 2]  # episode 2 finished in the failing shard before episode 3
-    assert handed_on == evaluate(*_scripted_setup(), 3, FAILING_SEED - 3)
+    assert handed_on == evaluate(*scripted_setup(), 3, FAILING_SEED - 3)
 
 
 @pytest.mark.slow
