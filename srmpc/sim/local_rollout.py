@@ -25,25 +25,26 @@ through the vehicles it leads (IDM has no distance cutoff). :func:`local_scene` 
    rollout's first sub-step uses) of every kept IDM vehicle, repeated ``leader_depth`` times (a chain of
    leaders in lane order), so that each window vehicle follows the vehicle it actually follows.
 
-**The bound.** If (a) the other vehicles drive forward (x-progress >= 0 over the horizon: IDM brakes at
-most 6 m/s^2 and highway traffic at 20-30 m/s does not stop in 5 s; a vehicle braking to a stop behind
-a crash is the exception), and (b) every window vehicle's trajectory over [0, H] is the full scene's,
-then no dropped vehicle is ever within R of the ego, so the observation, the SI, r', the termination and
-the ego's trajectory of the reduced rollout equal the full one's bit for bit. Proof of the first part:
-for a dropped vehicle ahead, x_j(t) - x_ego(t) >= dx + 0 - P_ego^+(t) >= dx - P_ego^+(H) > R + m;
-for one behind, x_ego(t) - x_j(t) >= -dx - max_t[(w_j - v_0) t + b t^2 / 2] > R + m. The observation
-picks among |dx| <= R only, and the ego's collision test needs |dx| < 5.39 m, so a dropped vehicle is
-neither observed nor hit, and the ego's action at every step is the full rollout's.
+**The bound.** If (a) the other vehicles drive forward (x-progress >= 0 over the horizon; this is the one
+assumption not proved here: IDM brakes at up to 6 m/s^2, so a vehicle that brakes hard for the whole horizon,
+behind a crash, can stop and, in highway-env's model, reverse), and (b) every window vehicle's trajectory over
+[0, H] is the full scene's, then no dropped vehicle is ever within R of the ego, so the observation, the SI,
+r', the termination and the ego's trajectory of the reduced rollout equal the full one's bit for bit. Proof of
+the first part: for a dropped vehicle ahead, x_j(t) - x_ego(t) >= dx + 0 - P_ego^+(t) >= dx - P_ego^+(H) > R + m;
+for one behind, x_ego(t) - x_j(t) >= -dx - max_t[(w_j - v_0) t + b t^2 / 2] > R + m. The observation picks
+among |dx| <= R only, and the ego's collision test needs |dx| < 5.39 m, so a dropped vehicle is neither
+observed nor hit, and the ego's action at every step is the full rollout's.
 
-(b) is where the reduced rollout is *not* exact: a kept vehicle's motion depends on its leader, its
-leader's on its own, and so on to the front of the lane. With ``leader_depth`` = d, the leaders of
-window vehicles are kept d links deep, and the last vehicle of each kept chain drives on a free road
-instead of behind its dropped leader; that error reaches a window vehicle only through d IDM links
-within 5 s, each damped by the IDM gap term (s*/gap)^2. ``leader_depth = -1`` keeps whole chains (then
-(b) holds except for collisions between a dropped and a kept vehicle, and the reduced rollout equals
-the full one bit for bit; it keeps every vehicle ahead of the window in a lane that has one). Followers
-are never needed: with lane changes off, an IDM vehicle reads only its leaders. The measured deviation
-on twin scenes is in ``tests/test_local_rollout.py``.
+(b) is where the reduced rollout is *not* exact: a kept vehicle's motion depends on its leader, its leader's
+on its own, and so on to the front of the lane. With ``leader_depth`` = d, the leaders of window vehicles are
+kept d links deep, and the last vehicle of each kept chain drives on a free road instead of behind its dropped
+leader (lane changes are off in the twin, so the lane order, and with it each vehicle's leader, holds over the
+horizon unless vehicles collide); that error reaches a window vehicle only through d IDM links within 5 s,
+each damped by the IDM gap term (s*/gap)^2. ``leader_depth = -1`` keeps whole chains (then (b) holds except
+for collisions between a dropped and a kept vehicle, and under (a) the reduced rollout equals the full one bit for bit;
+it keeps every vehicle ahead of the window in a lane that has one). Followers are never needed: with lane
+changes off, an IDM vehicle reads only its leaders. The measured deviation on twin scenes is in
+``tests/test_local_rollout.py``.
 
 The reduced scene keeps the storage order (IDM vehicles in spawn order, the ego last) and renumbers the
 road order (``ego_rank``) and the x-order cache (``order``), so :func:`srmpc.sim.rollout.rollout` and the
