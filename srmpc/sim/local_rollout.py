@@ -48,12 +48,24 @@ changes off, an IDM vehicle reads only its leaders. The measured deviation on tw
 
 The reduced scene keeps the storage order (IDM vehicles in spawn order, the ego last) and renumbers the
 road order (``ego_rank``) and the x-order cache (``order``), so :func:`srmpc.sim.rollout.rollout` and the
-fused kernel run on it unchanged, with ``constants.vehicles`` set to the reduced count. The rollout's
+fused kernel run on it unchanged (they take the vehicle count from the scene's arrays). The rollout's
 ``others`` then has the kept vehicles only, in kept order: ``kept[:-1]`` maps them back to the full
-scene's indices. The full rollout stays the default everywhere; nothing calls this module yet.
+scene's indices.
+
+**Who uses it.** SRMPC with ``controller.srmpc.rollout=local`` (``srmpc.controllers.srmpc.RolloutScope``): on
+its compiled step the cut is made inside the same numba call as the rollout (:func:`local_arrays` on the
+rollout's own work buffers, ``srmpc.mpc.compiled_step.srmpc_step``), on the Python path (the variants) by
+:func:`local_rollout`. **What the dropped vehicles get.** Only the ego's trajectory and inputs of the rollout
+enter SRMPC's QP, except with ``prediction=policy_rollout``, where the observed vehicles' rollout trajectories
+are its prediction. Every observed vehicle is kept: it is within R of the ego at t = 0, inside the window
+(whose reach is at least R + m on both sides). :func:`local_rollout` still returns a trajectory for every
+vehicle: the dropped ones are predicted at constant speed along their heading (x + v cos(psi) t, y + v sin(psi) t),
+as the QP's constant-velocity prediction does. The full rollout stays the default (``rollout=full``).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit
@@ -61,7 +73,9 @@ from numba import njit
 from srmpc.sim.constants import MAX_SPEED, VEHICLE_LENGTH, SimConstants
 from srmpc.sim.engine import road_ranks, sort_by_x, workspace
 from srmpc.sim.idm import all_leaders
-from srmpc.sim.state import SPEED, SceneState, StateArrays, X
+from srmpc.sim.mlp import MlpPolicy
+from srmpc.sim.rollout import Rollout, rollout
+from srmpc.sim.state import HEADING, SPEED, SceneState, StateArrays, X, Y
 
 WINDOW_MARGIN_M = VEHICLE_LENGTH
 """m: the window's extra reach beyond the perception range [m] (impacts, headings)."""
@@ -87,9 +101,15 @@ def closing_from_behind_m(speed_bound: float, ego_speed: float, ego_brake: float
     return max(0.0, (speed_bound - ego_speed) * horizon_s + 0.5 * ego_brake * horizon_s**2)
 
 
+def horizon_seconds(horizon: int, constants: SimConstants) -> float:
+    """H = horizon * substeps * dt [s]: the rollout's duration for ``horizon`` control steps."""
+    return horizon * constants.substeps * constants.dt
+
+
 @njit(cache=True, error_model="numpy")
-def local_vehicles(s, c, b: int, horizon_s: float, leader_depth: int, keep: np.ndarray) -> None:
-    """keep[k] := whether storage index k of scene b is in the local scene (module doc); the ego always."""
+def local_vehicles(s, c, b: int, horizon_s: float, leader_depth: int, keep: np.ndarray, w) -> None:
+    """keep[k] := whether storage index k of scene b is in the local scene (module doc); the ego always.
+    ``w``: a :data:`~srmpc.sim.engine.Workspace` for at least the scene's vehicles (its contents are overwritten)."""
     n = c.vehicles
     ego = n - 1
     vehicles = s.vehicles[b]
@@ -113,7 +133,6 @@ def local_vehicles(s, c, b: int, horizon_s: float, leader_depth: int, keep: np.n
     keep[ego] = True
     if leader_depth == 0 or count == 0:
         return
-    w = workspace(n, c.lane_count)
     order = s.order[b].copy()
     road_ranks(s.ego_rank[b], n, w.rank)
     sort_by_x(vehicles, order, w.rank, w.position)
@@ -136,11 +155,12 @@ def local_vehicles(s, c, b: int, horizon_s: float, leader_depth: int, keep: np.n
 
 
 @njit(cache=True, error_model="numpy")
-def local_arrays(s, c, b: int, horizon_s: float, leader_depth: int):
-    """(scene b's reduced copy as (1, n, ...) :data:`~srmpc.sim.state.StateArrays`, the kept storage indices)."""
+def local_arrays(s, c, b: int, horizon_s: float, leader_depth: int, w):
+    """(scene b's reduced copy as (1, n, ...) :data:`~srmpc.sim.state.StateArrays`, the kept storage indices);
+    ``w`` as in :func:`local_vehicles`."""
     full = c.vehicles
     keep = np.zeros(full, dtype=np.bool_)
-    local_vehicles(s, c, b, horizon_s, leader_depth, keep)
+    local_vehicles(s, c, b, horizon_s, leader_depth, keep, w)
     kept = np.nonzero(keep)[0]
     n = kept.size
     index = np.full(full, -1, dtype=np.int64)
@@ -188,6 +208,30 @@ def local_scene(
     """
     if horizon < 1:
         raise ValueError(f"horizon={horizon}: must be >= 1")
-    horizon_s = horizon * constants.substeps * constants.dt
-    arrays, kept = local_arrays(state.arrays(), constants, scene, horizon_s, leader_depth)
+    arrays, kept = local_arrays(state.arrays(), constants, scene, horizon_seconds(horizon, constants), leader_depth,
+                                workspace(constants.vehicles, constants.lane_count))
     return SceneState(*arrays), constants._replace(vehicles=kept.size), kept
+
+
+def constant_speed_others(others: np.ndarray, horizon: int, step_s: float) -> np.ndarray:
+    """(H + 1, V, 4) states of ``others`` (V, 4) at constant speed along their heading, ``step_s`` [s] per step."""
+    t = np.arange(horizon + 1)[:, None] * step_s
+    predicted = np.repeat(others[None], horizon + 1, axis=0)
+    predicted[:, :, X] += others[:, SPEED] * np.cos(others[:, HEADING]) * t
+    predicted[:, :, Y] += others[:, SPEED] * np.sin(others[:, HEADING]) * t
+    return predicted
+
+
+def local_rollout(state: SceneState, constants: SimConstants, policy: Callable[[np.ndarray], np.ndarray] | MlpPolicy,
+                  horizon: int, record_others: bool = False, leader_depth: int = LEADER_DEPTH) -> Rollout:
+    """:func:`srmpc.sim.rollout.rollout` of scene 0 on :func:`local_scene`'s cut (B = 1).
+
+    With ``record_others``, ``others`` has every other vehicle of the full scene in its storage order: the kept
+    ones as simulated, the dropped ones at constant speed (:func:`constant_speed_others`; module doc)."""
+    reduced, reduced_constants, kept = local_scene(state, constants, horizon, leader_depth)
+    result = rollout(reduced, reduced_constants, policy, horizon, record_others=record_others, parallel=False)
+    if record_others:
+        others = constant_speed_others(state.vehicles[0, :-1], horizon, constants.substeps * constants.dt)
+        others[:, kept[:-1]] = result.others[0]
+        result.others = others[None]
+    return result
