@@ -157,6 +157,7 @@ def test_dense_traffic_differs_from_light_only_in_traffic():
         ("evaluation.episodes=0", ["evaluation.episodes=0"]),
         ("evaluation.seed=-3", ["evaluation.seed=-3"]),
         ("controller.srmpc.selection=zzz", ["controller.srmpc.selection", "'zzz'"]),
+        ("controller.srmpc.rollout=nearby", ["controller.srmpc.rollout", "'nearby'"]),
         ("srmpc=nope", ["srmpc=nope", "srmpc is gone", "controller.srmpc"]),
         ("srmpc.variant=track_rollout", ["srmpc.variant is gone"]),
         ("+policy=ppo_lsi_rss", ["policy is gone", "controller.policy=<agent>"]),

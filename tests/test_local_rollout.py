@@ -29,7 +29,14 @@ import pytest
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.sim import engine
 from srmpc.sim.constants import SimConstants
-from srmpc.sim.local_rollout import LEADER_DEPTH, WINDOW_MARGIN_M, ego_reach_ahead_m, local_scene
+from srmpc.sim.local_rollout import (
+    LEADER_DEPTH,
+    WINDOW_MARGIN_M,
+    constant_speed_others,
+    ego_reach_ahead_m,
+    local_rollout,
+    local_scene,
+)
 from srmpc.sim.mlp import MlpPolicy
 from srmpc.sim.rollout import rollout
 from srmpc.sim.single_env import TwinScenarioEnv
@@ -166,6 +173,55 @@ def test_reduced_scene_runs_both_rollout_paths_and_leaves_the_state_alone(scenes
     assert fused.others.shape == (1, HORIZON + 1, kept.size - 1, 4)
     for name in ("vehicles", "order", "lane", "ego_rank"):
         np.testing.assert_array_equal(getattr(state, name), getattr(before, name))
+
+
+def test_compiled_step_cuts_and_rolls_out_as_local_rollout(scenes):
+    """SRMPC's compiled step (``CompiledPlannerStep.srmpc``): with ``local`` it simulates exactly
+    ``local_scene``'s vehicles and its rollout is ``local_rollout``'s bit for bit; with whole leader chains
+    (the bound's exact case) and without ``local`` it is the full rollout's."""
+    from srmpc.controller_factory import build_controller
+
+    traffic, states, constants = scenes
+    config = to_objects(compose_config([f"+experiment={traffic}_traffic", "tracking.enabled=false",
+                                        "controller=srmpc"]))
+    controller = build_controller(config, TwinScenarioEnv(config.scenario))
+    compiled, policy = controller.planner.compiled_step(), controller.policy
+    no_slots = np.full(6, -1, dtype=np.int64)
+
+    def compiled_ego(state: SceneState, local: bool, leader_depth: int = LEADER_DEPTH) -> np.ndarray:
+        compiled.srmpc(state, constants, policy, state.vehicles[0, -1].copy(),
+                       np.ascontiguousarray(state.vehicles[0, :-1]), no_slots, np.zeros(2),
+                       controller.tracking_reference, local=local, leader_depth=leader_depth)
+        return compiled.last_rollout()[0][0].copy()
+
+    for state in states[:5]:
+        full = rollout(state, constants, policy, HORIZON).ego[0]
+        np.testing.assert_array_equal(compiled_ego(state, False), full)
+        np.testing.assert_array_equal(compiled.last_kept(), np.arange(constants.vehicles))
+        np.testing.assert_array_equal(compiled_ego(state, True),
+                                      local_rollout(state, constants, policy, HORIZON).ego[0])
+        np.testing.assert_array_equal(compiled.last_kept(), local_scene(state, constants, HORIZON)[2])
+        np.testing.assert_array_equal(compiled_ego(state, True, leader_depth=-1), full)
+
+
+def test_local_rollout_predicts_every_vehicle(scenes):
+    """``record_others``: every other vehicle has a trajectory, the simulated ones the reduced rollout's, the
+    dropped ones constant speed; every vehicle within the perception range at t = 0 (the observed ones among
+    them) is simulated."""
+    _, states, constants = scenes
+    policy = MlpPolicy.random(0)
+    for state in states[:5]:
+        reduced, reduced_constants, kept = local_scene(state, constants, HORIZON)
+        result = local_rollout(state, constants, policy, HORIZON, record_others=True)
+        assert result.others.shape == (1, HORIZON + 1, constants.vehicles - 1, 4)
+        simulated = rollout(reduced, reduced_constants, policy, HORIZON, record_others=True)
+        np.testing.assert_array_equal(result.others[0][:, kept[:-1]], simulated.others[0])
+        dropped = np.setdiff1d(np.arange(constants.vehicles - 1), kept)
+        step_s = constants.substeps * constants.dt
+        np.testing.assert_array_equal(result.others[0][:, dropped],
+                                      constant_speed_others(state.vehicles[0, dropped], HORIZON, step_s))
+        in_range = np.abs(state.vehicles[0, :-1, 0] - state.vehicles[0, -1, 0]) <= constants.perception_range
+        assert set(np.flatnonzero(in_range)) <= set(kept)
 
 
 def test_horizon_must_be_positive(scenes):
