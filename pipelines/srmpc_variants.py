@@ -108,7 +108,7 @@ def main() -> None:
         lines.append("")
         if "rollout_scope" in rows.get("local_rollout", {}):
             d, s = rows["local_rollout"]["paired_differences"]["paper"], rows["local_rollout"]["rollout_scope"]
-            lines += ["Rollout scope (issue 40): local - full, the same seeds, the only change "
+            lines += ["Rollout scope: local - full, the same seeds, the only change "
                       "`controller.srmpc.rollout`.", "",
                       "| episodes | J_c local - full | rho_c local - full | v_x local - full [m/s] | collisions local "
                       "/ full | episodes identical |", "|---|---|---|---|---|---|",

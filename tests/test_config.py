@@ -257,7 +257,7 @@ def test_each_variant_experiment_is_named_by_the_variant_its_settings_make():
     from srmpc.controllers.srmpc import variant_of
 
     names = sorted(p.stem for p in (CONFIG_DIR / "experiment" / "variants").glob("*.yaml"))
-    assert names == ["best_of_two", "rollout_prediction", "sqp", "track_rollout"]
+    assert names == ["best_of_two", "local_rollout", "rollout_prediction", "sqp", "track_rollout"]
     for name in names:
         assert variant_of(to_objects(compose_config([f"+experiment=variants/{name}"])).controller.srmpc) == name
     both = to_objects(compose_config(["controller.srmpc.relinearizations=2",
