@@ -51,15 +51,19 @@ TARGET_MIN_VX_MPS = 23.5
 def rollout_scope(local: pd.DataFrame, full: pd.DataFrame, local_row: dict, full_row: dict, resamples: int,
                   seed: int) -> dict:
     """Local minus full rollout on the same seeds: rho_c with its CI (J_c and v_x are in ``paired_differences``),
-    each run's collisions, and the episodes whose every column but the step-outcome counts is equal."""
+    each run's collisions, the episodes equal in every metric column, those with the same termination and J_c,
+    and the largest per-episode |v_x difference| [m/s]."""
     merged = local.merge(full, on="seed", suffixes=("_local", "_full"))
     columns = ["episode_return", "event_cost", "n_steps", "mean_vx", "si_cost_return", "termination"]
     same = pd.concat([merged[f"{c}_local"] == merged[f"{c}_full"] for c in columns], axis=1)
-    identical = int(same.all(axis=1).sum())
+    same_outcome = (merged["termination_local"] == merged["termination_full"]) & (
+        merged["event_cost_local"] == merged["event_cost_full"])
     return {**paired_cost_rate_difference(local, full, resamples, seed),
             "collisions": {"local": local_row["terminations"].get("collision", 0),
                            "full": full_row["terminations"].get("collision", 0)},
-            "identical_episodes": identical}
+            "identical_episodes": int(same.all(axis=1).sum()),
+            "same_outcome_episodes": int(same_outcome.sum()),
+            "max_abs_episode_vx_difference_mps": float((merged["mean_vx_local"] - merged["mean_vx_full"]).abs().max())}
 
 
 def main() -> None:
@@ -108,14 +112,15 @@ def main() -> None:
         lines.append("")
         if "rollout_scope" in rows.get("local_rollout", {}):
             d, s = rows["local_rollout"]["paired_differences"]["paper"], rows["local_rollout"]["rollout_scope"]
-            lines += ["Rollout scope: local - full, the same seeds, the only change "
-                      "`controller.srmpc.rollout`.", "",
-                      "| episodes | J_c local - full | rho_c local - full | v_x local - full [m/s] | collisions local "
-                      "/ full | episodes identical |", "|---|---|---|---|---|---|",
+            lines += ["Rollout scope: local - full, the same seeds, the only change `controller.srmpc.rollout`.", "",
+                      "| episodes | J_c local - full | rho_c local - full | v_x local - full [m/s] | largest episode "
+                      "\\|v_x difference\\| [m/s] | collisions local / full | same termination and J_c | identical |",
+                      "|---|---|---|---|---|---|---|---|",
                       f"| {s['episodes']} | {d['mean_event_cost']:+.3f} [{d['mean_event_cost_ci95'][0]:+.3f}, "
-                      f"{d['mean_event_cost_ci95'][1]:+.3f}] | {s['cost_rate']:+.6f} [{s['cost_rate_ci95'][0]:+.6f}, "
-                      f"{s['cost_rate_ci95'][1]:+.6f}] | {d['mean_vx']:+.3f} [{d['mean_vx_ci95'][0]:+.3f}, "
-                      f"{d['mean_vx_ci95'][1]:+.3f}] | {s['collisions']['local']} / {s['collisions']['full']} | "
+                      f"{d['mean_event_cost_ci95'][1]:+.3f}] | {s['cost_rate']:+.2e} [{s['cost_rate_ci95'][0]:+.2e}, "
+                      f"{s['cost_rate_ci95'][1]:+.2e}] | {d['mean_vx']:+.2e} [{d['mean_vx_ci95'][0]:+.2e}, "
+                      f"{d['mean_vx_ci95'][1]:+.2e}] | {s['max_abs_episode_vx_difference_mps']:.2e} | "
+                      f"{s['collisions']['local']} / {s['collisions']['full']} | {s['same_outcome_episodes']} | "
                       f"{s['identical_episodes']} |", ""]
     write_outputs({Path("results/ablation.md"): "\n".join(lines),
                    Path("results/ablation.json"): json.dumps(ablation, indent=2) + "\n"})
