@@ -8,6 +8,10 @@ meets the original targets (median <= 1 ms, p99 <= 2 ms). ``targets`` holds issu
 median <= 250 us, p99 <= 500 us, rollout median <= 100 us; LTV-MPC median <= 150 us, p99 <= 300 us)
 with ``ratio_to_target`` = measured / limit; ``rollout_vs_highway_env`` times the same 25-step policy
 rollout of the same scenes in the twin and in highway-env in this run. The paper could not measure this at all.
+``rollout_scope`` sets SRMPC with the full rollout (``srmpc``) against the rollout on the scene cut to the horizon
+(``srmpc_local_rollout``, ``controller.srmpc.rollout=local``) per traffic level: the step's and the rollout's
+median and p99 and the vehicles the local rollout simulated (of the scene's); ``per_traffic`` has the same
+rows for every controller.
 
 Method: light and dense twin episodes (the committed config, seeds ``1000 e`` / ``1000 e + 1``) are
 driven by the paper's SRMPC; at every step each controller (each with its own previous solution)
@@ -45,11 +49,13 @@ CONTROLLERS = {  # name -> overrides
     "srmpc_rollout_prediction": ["controller=srmpc", "controller.srmpc.prediction=policy_rollout"],
     "srmpc_sqp": ["controller=srmpc", "controller.srmpc.relinearizations=2"],
     "srmpc_track_rollout": ["controller=srmpc", "controller.srmpc.tracking=policy_rollout"],
+    "srmpc_local_rollout": ["controller=srmpc", "controller.srmpc.rollout=local"],
 }
 TARGETS_US = {"median_us": 1000.0, "p99_us": 2000.0}
 """SRMPC's original real-time targets [us] (``meets_targets``; benchmark, not test)."""
 TARGETS = {  # controller -> row key -> limit [us], one core (issue 20; benchmark, not test)
     "srmpc": {"median_us": 250.0, "p99_us": 500.0, "rollout_median_us": 100.0},
+    "srmpc_local_rollout": {"median_us": 250.0, "p99_us": 500.0, "rollout_median_us": 100.0},
     "ltv_mpc": {"median_us": 150.0, "p99_us": 300.0},
 }
 ROLLOUT_HORIZON = 25
@@ -76,7 +82,7 @@ def run(traffic: str, episodes: int, steps: int, warmup: int) -> dict[str, dict[
     configs = {name: to_objects(compose_config(base + overrides)) for name, overrides in CONTROLLERS.items()}
     env = TwinScenarioEnv(configs["srmpc"].scenario)
     controllers = {name: build_controller(config, env) for name, config in configs.items()}
-    samples = {name: {"step": [], "rollout": [], "qp_update": [], "solve": []} for name in controllers}
+    samples = {name: {"step": [], "rollout": [], "qp_update": [], "solve": [], "simulated": []} for name in controllers}
     same_qp = {"iterations_warm": [], "iterations_cold": [], "solve_us": [], "piqp_native_us": []}
     same_qp_solvers = {"cold": make_solver("riccati_ipm_cold"), "piqp_native": make_solver("piqp_native")}
     names = list(controllers)
@@ -97,6 +103,8 @@ def run(traffic: str, episodes: int, steps: int, warmup: int) -> dict[str, dict[
                     for key, value in (("step", elapsed_us), ("rollout", rollout_us), ("qp_update", qp_update_us),
                                        ("solve", solve_us)):
                         samples[name][key].append(value)
+                    if isinstance(controllers[name], SrmpcController) and controllers[name].compiled_step():
+                        samples[name]["simulated"].append(controllers[name].planner.compiled_step().last_kept().size)
             plan = controllers["srmpc"].last_plan
             if step >= warmup and plan.iterations is not None and plan.reference_source.value == "given":
                 record_same_qp(controllers["srmpc"], same_qp_solvers, same_qp)
@@ -182,6 +190,14 @@ def same_qp_summary(same_qp: dict) -> dict:
             "n_qps": len(same_qp["solve_us"])}
 
 
+def step_and_rollout(series: dict[str, list[float]]) -> dict[str, float]:
+    """The step's percentiles and the rollout part's median and p99 [us]."""
+    row = percentiles(series["step"])
+    row["rollout_median_us"] = float(np.median(series["rollout"]))
+    row["rollout_p99_us"] = float(np.percentile(series["rollout"], 99))
+    return row
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=4, help="episodes per traffic level")
@@ -196,12 +212,20 @@ def main() -> None:
     load_before = os.getloadavg()
     merged: dict[str, dict[str, list[float]]] = {name: {} for name in CONTROLLERS}
     same_qp: dict[str, list[float]] = {}
-    per_traffic = {}
+    per_traffic, rollout_scope = {}, {}
     for traffic in ("light", "dense"):
         samples = run(traffic, args.episodes, args.steps, args.warmup)
-        per_traffic[traffic] = {name: percentiles(s["step"]) for name, s in samples.items()}
+        per_traffic[traffic] = {name: step_and_rollout(s) for name, s in samples.items()}
+        rollout_scope[traffic] = {
+            "full": per_traffic[traffic]["srmpc"], "local": per_traffic[traffic]["srmpc_local_rollout"],
+            "vehicles": to_objects(compose_config([f"+experiment={traffic}_traffic"])).scenario.vehicles_count + 1,
+            "vehicles_simulated_local_mean": float(np.mean(samples["srmpc_local_rollout"]["simulated"])),
+            "vehicles_simulated_local_min_max": [int(np.min(samples["srmpc_local_rollout"]["simulated"])),
+                                                 int(np.max(samples["srmpc_local_rollout"]["simulated"]))]}
         for name, series in samples.items():
             for key, values in series.items():
+                if key == "simulated":
+                    continue
                 if key == "same_qp":
                     for part, part_values in values.items():
                         same_qp.setdefault(part, []).extend(part_values)
@@ -223,6 +247,7 @@ def main() -> None:
     result = {
         "per_controller": per_controller,
         "per_traffic": per_traffic,
+        "rollout_scope": rollout_scope,
         "targets_us": {"srmpc": TARGETS_US},
         "srmpc_meets_targets": per_controller["srmpc"]["meets_targets"],
         "targets": {**targets(per_controller), "srmpc_same_qps": same_qp_summary(same_qp)},
@@ -240,8 +265,8 @@ def main() -> None:
     }
     OUTPUT.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(OUTPUT, json.dumps(result, indent=2) + "\n")
-    print(json.dumps({"targets": result["targets"], "rollout_vs_highway_env": result["rollout_vs_highway_env"]},
-                     indent=1))
+    print(json.dumps({"targets": result["targets"], "rollout_vs_highway_env": result["rollout_vs_highway_env"],
+                      "rollout_scope": rollout_scope}, indent=1))
     for name, row in per_controller.items():
         print(f"{name:26s} median {row['median_us']:7.0f} us  p90 {row['p90_us']:7.0f}  p99 {row['p99_us']:7.0f}  "
               f"(rollout {row['rollout_median_us']:5.0f}, qp update {row['qp_update_median_us']:5.0f}, "

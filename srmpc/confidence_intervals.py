@@ -10,7 +10,8 @@
   -1241 / 244 = -5.1); its bootstrap resamples episodes and divides the resample's two means. The mean of
   per-episode ratios J_r / n_steps is kept as ``mean_return_per_step`` and printed only under that name.
 - Paired differences (method A minus method B on the same seeds, so the same scenes): the percentile
-  bootstrap of the mean per-episode difference, resampling episode pairs.
+  bootstrap of the mean per-episode difference, resampling episode pairs; for rho_c (a ratio of sums) the
+  bootstrap of rho_c(A) - rho_c(B) over the same resampled pairs (``paired_cost_rate_difference``).
 - Ratios of two methods' means on the same seeds (e.g. SRMPC's J_c over LTV-MPC's): the percentile bootstrap
   of sum(a) / sum(b) over resampled episode pairs; resamples with sum(b) = 0 count as +inf, so an interval whose
   denominator can vanish has no finite upper bound (``paired_ratios``).
@@ -102,6 +103,20 @@ def paired_differences(a: pd.DataFrame, b: pd.DataFrame, resamples: int, seed: i
         result[metric] = float(difference.mean())
         result[f"{metric}_ci95"] = percentile_interval(difference[index].mean(axis=1))
     return result
+
+
+def paired_cost_rate_difference(a: pd.DataFrame, b: pd.DataFrame, resamples: int, seed: int) -> dict:
+    """rho_c(a) - rho_c(b) (rho_c = sum J_c / sum n_steps) over the seeds both ran, with its bootstrap CI."""
+    merged = a.merge(b, on="seed", suffixes=("_a", "_b"))
+    if merged.empty:
+        raise ValueError("no common seeds to pair")
+    index = bootstrap_indices(len(merged), resamples, seed)
+    events_a, steps_a = merged["event_cost_a"].to_numpy(float), merged["n_steps_a"].to_numpy(float)
+    events_b, steps_b = merged["event_cost_b"].to_numpy(float), merged["n_steps_b"].to_numpy(float)
+    samples = (events_a[index].sum(axis=1) / steps_a[index].sum(axis=1)
+               - events_b[index].sum(axis=1) / steps_b[index].sum(axis=1))
+    difference = events_a.sum() / steps_a.sum() - events_b.sum() / steps_b.sum()
+    return {"episodes": len(merged), "cost_rate": float(difference), "cost_rate_ci95": percentile_interval(samples)}
 
 
 def paired_ratios(a: pd.DataFrame, b: pd.DataFrame, resamples: int, seed: int) -> dict:

@@ -157,6 +157,7 @@ def test_dense_traffic_differs_from_light_only_in_traffic():
         ("evaluation.episodes=0", ["evaluation.episodes=0"]),
         ("evaluation.seed=-3", ["evaluation.seed=-3"]),
         ("controller.srmpc.selection=zzz", ["controller.srmpc.selection", "'zzz'"]),
+        ("controller.srmpc.rollout=nearby", ["controller.srmpc.rollout", "'nearby'"]),
         ("srmpc=nope", ["srmpc=nope", "srmpc is gone", "controller.srmpc"]),
         ("srmpc.variant=track_rollout", ["srmpc.variant is gone"]),
         ("+policy=ppo_lsi_rss", ["policy is gone", "controller.policy=<agent>"]),
@@ -256,7 +257,7 @@ def test_each_variant_experiment_is_named_by_the_variant_its_settings_make():
     from srmpc.controllers.srmpc import variant_of
 
     names = sorted(p.stem for p in (CONFIG_DIR / "experiment" / "variants").glob("*.yaml"))
-    assert names == ["best_of_two", "rollout_prediction", "sqp", "track_rollout"]
+    assert names == ["best_of_two", "local_rollout", "rollout_prediction", "sqp", "track_rollout"]
     for name in names:
         assert variant_of(to_objects(compose_config([f"+experiment=variants/{name}"])).controller.srmpc) == name
     both = to_objects(compose_config(["controller.srmpc.relinearizations=2",

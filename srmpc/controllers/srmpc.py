@@ -17,7 +17,10 @@ Every control step k, top to bottom in :meth:`SrmpcController.act`:
 
 The information boundary: the rollout runs on the full simulator state of the current scene
 (every vehicle, their IDM parameters), as in the paper ("use pi to simulate environment state
-forward"), while the QP sees only the 6 observed vehicles, as LTV-MPC does. The other vehicles'
+forward"), or with ``rollout=local`` on that scene cut to the vehicles that can reach the ego's
+perception range within the horizon plus their leader chains (``srmpc.sim.local_rollout``, the bound
+in its docstring; the cut is made inside the compiled step), while the QP sees only the 6 observed
+vehicles, as LTV-MPC does. The other vehicles'
 predicted motion in the QP is constant velocity (the paper's) or, with
 ``prediction=policy_rollout``, the observed vehicles' trajectories from the same rollout
 (their IDM response to the policy's plan).
@@ -41,6 +44,7 @@ from srmpc.mpc.compiled_step import STEP_REJECTED, STEP_ROLLOUT_FAILED, Compiled
 from srmpc.mpc.planner import LtvMpcPlanner, Plan, ReferenceSource
 from srmpc.mpc.problem import nonlinear_plan_cost
 from srmpc.sim.constants import SimConstants
+from srmpc.sim.local_rollout import local_rollout
 from srmpc.sim.mlp import MlpPolicy
 from srmpc.sim.rollout import Rollout, rollout
 from srmpc.sim.state import SceneState
@@ -75,6 +79,17 @@ class TrackingTarget(enum.Enum):
     constraints (the right-lane reference if the rollout failed)."""
 
 
+class RolloutScope(enum.Enum):
+    """Which vehicles the policy's rollout simulates."""
+
+    full = "full"
+    """Every vehicle of the scene (the paper's)."""
+    local = "local"
+    """The vehicles that can come within the perception range of the ego within the horizon, and their
+    leaders ``LEADER_DEPTH`` links deep (``srmpc.sim.local_rollout``, bound in its docstring); the dropped
+    vehicles are predicted at constant speed where a prediction of them is read."""
+
+
 MAX_RELINEARIZATIONS = 10
 """Upper bound on ``relinearizations`` (each costs one more QP solve per step)."""
 
@@ -91,6 +106,8 @@ class SrmpcSettings:
     """Extra QP solves about the exact-model trajectory of the last solution (0 = the paper)."""
     tracking: TrackingTarget = TrackingTarget.lane_centre
     """lane_centre (the paper's x^ref) or policy_rollout (x^ref = the policy's rollout)."""
+    rollout: RolloutScope = RolloutScope.full
+    """full (the paper's: every vehicle simulated) or local (the scene cut to the horizon)."""
 
     def __post_init__(self) -> None:
         check_fields(self, relinearizations=Interval(0, MAX_RELINEARIZATIONS))
@@ -103,8 +120,8 @@ SQP_RELINEARIZATIONS = 2
 def variant_of(settings: SrmpcSettings) -> str:
     """The variant name the settings make: ``paper`` when each is the paper's (Algorithm 1), else the name of each
     that differs, in field order, joined by ``+``: ``best_of_two`` (selection), ``rollout_prediction``
-    (prediction), ``sqp`` (relinearizations), ``track_rollout`` (tracking). A display name: a run's identity is
-    its experiment (srmpc.config.schema.Config.experiment)."""
+    (prediction), ``sqp`` (relinearizations), ``track_rollout`` (tracking), ``local_rollout`` (rollout). A
+    display name: a run's identity is its experiment (srmpc.config.schema.Config.experiment)."""
     names = []
     if settings.selection is not ReferenceSelection.policy_first:
         names.append(settings.selection.value)
@@ -115,6 +132,8 @@ def variant_of(settings: SrmpcSettings) -> str:
         names.append("sqp" if k == SQP_RELINEARIZATIONS else f"sqp_{k}")
     if settings.tracking is not TrackingTarget.lane_centre:
         names.append("track_rollout")
+    if settings.rollout is not RolloutScope.full:
+        names.append("local_rollout")
     return "+".join(names) or "paper"
 
 
@@ -123,7 +142,7 @@ class SrmpcStepTiming:
     """Wall time of one SRMPC step [us], split as the latency benchmark reports it."""
 
     rollout_us: float
-    """Scene copy and policy rollout."""
+    """Scene copy (or cut, ``rollout=local``) and policy rollout."""
     qp_update_us: float
     """Prediction, linearization, QP value update, plan selection (everything but the solves)."""
     solve_us: float
@@ -239,8 +258,8 @@ class SrmpcController:
     # ------------------------------------------------------------------ the parts
     def compiled_step(self) -> CompiledPlannerStep | None:
         """The planner's compiled step if this variant is the default one (Algorithm 1 as the paper:
-        policy_first, constant-velocity prediction, no re-linearization, lane-centre tracking) and the
-        policy a 2-hidden-layer ``MlpPolicy``; else None (the Python parts)."""
+        policy_first, constant-velocity prediction, no re-linearization, lane-centre tracking; either rollout
+        scope) and the policy a 2-hidden-layer ``MlpPolicy``; else None (the Python parts)."""
         settings = self.settings
         if not (isinstance(self.policy, MlpPolicy) and len(self.policy.weights) == 3
                 and settings.selection is ReferenceSelection.policy_first
@@ -257,7 +276,8 @@ class SrmpcController:
             state, constants = self.scene_source()
             outcome, status, iterations, _ = compiled.srmpc(
                 state, constants, self.policy, ego, np.ascontiguousarray(scene.others, dtype=np.float64),
-                np.ascontiguousarray(scene.slot_vehicle, dtype=np.int64), self.last_input, self.tracking_reference)
+                np.ascontiguousarray(scene.slot_vehicle, dtype=np.int64), self.last_input, self.tracking_reference,
+                local=self.settings.rollout is RolloutScope.local)
         except Exception:  # noqa: BLE001 - Algorithm 1: any error in the rollout falls back
             return None, None, "no policy reference"
         if outcome == STEP_ROLLOUT_FAILED:
@@ -269,11 +289,15 @@ class SrmpcController:
         return policy_rollout, plan, "solved" if outcome == STEP_REJECTED else status_name(status)
 
     def policy_rollout(self) -> Rollout | None:
-        """The policy's N-step rollout from the current scene, or None if it raised or is non-finite."""
+        """The policy's N-step rollout from the current scene (``rollout=local``: its cut to the horizon, the
+        dropped vehicles at constant speed in ``others``), or None if it raised or is non-finite."""
         record_others = self.settings.prediction is OtherVehiclePrediction.policy_rollout
         try:
             state, constants = self.scene_source()
-            result = rollout(state, constants, self.policy, self.horizon, record_others=record_others)
+            if self.settings.rollout is RolloutScope.local:
+                result = local_rollout(state, constants, self.policy, self.horizon, record_others=record_others)
+            else:
+                result = rollout(state, constants, self.policy, self.horizon, record_others=record_others)
         except Exception:  # noqa: BLE001 - Algorithm 1: any error in the rollout falls back
             return None
         finite = np.isfinite(result.ego).all() and np.isfinite(result.actions).all()

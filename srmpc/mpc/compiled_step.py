@@ -3,8 +3,9 @@
 One numba function per step runs, without returning to Python in between and in arrays allocated once
 (:class:`CompiledPlannerStep`):
 
-1. the linearization reference (x^r, u^r): SRMPC -- a copy of the live scene and the policy's N-step
-   rollout in the twin, MLP and simulator in one kernel (``srmpc.sim.rollout.rollout_scene_in``);
+1. the linearization reference (x^r, u^r): SRMPC -- a copy of the live scene (``local``: cut to the vehicles
+   that can matter within the horizon, ``srmpc.sim.local_rollout.local_arrays``, in the same call) and the
+   policy's N-step rollout in the twin, MLP and simulator in one kernel (``srmpc.sim.rollout.rollout_scene_in``);
    LTV-MPC -- the previous plan shifted and rolled out through the exact model, else lane following
    (``LtvMpcPlanner.default_reference``); x^r_0 = the measured state;
 2. the QP update: constant-velocity prediction of the observed vehicles, the exact-model Jacobians
@@ -41,6 +42,7 @@ from srmpc.mpc.problem import (
     rollout_horizon,
 )
 from srmpc.mpc.solvers import STATUS_NAMES, STATUS_SOLVED, qp_tuple, solve_in
+from srmpc.sim.local_rollout import LEADER_DEPTH, horizon_seconds, local_arrays
 from srmpc.sim.rollout import copy_scene, rollout_buffers, rollout_scene_in
 
 STEP_SOLVED = 0
@@ -229,20 +231,44 @@ def ltv_mpc_step(arrays, constants, workspace, memory, ego, others, last_input, 
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _policy_rollout(scene, scene_copy, sim_constants, policy, rollout, local, horizon_s, leader_depth):
+    """The policy's rollout (``rollout``'s arrays) from a copy of ``scene`` (scene 0): the whole scene into
+    ``scene_copy``, or with ``local`` its cut to the horizon (``local_arrays``, its leader chains
+    ``leader_depth`` deep, on the rollout's work buffers). ``rollout``'s ``kept`` := the simulated vehicles'
+    storage indices in the full scene (ascending, the ego last), -1 after them; returns their count."""
+    w0, b0, w1, b1, w2, b2, low, high, squash = policy
+    ego_out, action_out, cost_out, reward_out, terminated_out, others_out, buffers, kept_out = rollout
+    horizon = action_out.shape[1]
+    if local:
+        reduced, kept = local_arrays(scene, sim_constants, 0, horizon_s, leader_depth, buffers.work)
+        rollout_scene_in(reduced, sim_constants, 0, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
+                         ego_out, action_out, cost_out, reward_out, terminated_out, others_out, False, buffers)
+        count = kept.shape[0]
+        kept_out[:count] = kept
+    else:
+        copy_scene(scene, scene_copy, 0)
+        rollout_scene_in(scene_copy, sim_constants, 0, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
+                         ego_out, action_out, cost_out, reward_out, terminated_out, others_out, False, buffers)
+        count = kept_out.shape[0]
+        for k in range(count):
+            kept_out[k] = k
+    kept_out[count:] = -1
+    return count
+
+
+@numba.njit(cache=True, error_model="numpy")
 def srmpc_step(arrays, constants, workspace, memory, scene, scene_copy, sim_constants, policy, rollout,
-               ego, others, slot_vehicle, last_input, tracking_reference):
+               ego, others, slot_vehicle, last_input, tracking_reference, local, horizon_s, leader_depth):
     """SRMPC's step (Algorithm 1, steps 2-3; module doc): the policy's rollout from a copy of ``scene``
     (``policy`` = ``MlpPolicy.packed`` flattened, ``rollout`` = (ego, actions, cost, reward', terminated,
-    others, buffers) arrays of one scene), then the QP about it.  Returns ``_solve``'s tuple
-    (``STEP_ROLLOUT_FAILED`` if the rollout is not finite)."""
+    others, buffers, kept) arrays of one scene; ``local``, ``horizon_s`` [s], ``leader_depth``: the scene cut to
+    the horizon, :func:`_policy_rollout`), then the QP about it.  Returns ``_solve``'s tuple
+    (``STEP_ROLLOUT_FAILED`` if the rollout is not finite).  The QP's prediction of the observed vehicles is
+    constant velocity from ``others`` (the live scene), so no vehicle the cut dropped needs one here."""
     start = _read_cycle_counter()
     _set_measurement(arrays, ego, last_input, tracking_reference)
-    copy_scene(scene, scene_copy, 0)
-    w0, b0, w1, b1, w2, b2, low, high, squash = policy
-    ego_out, action_out, cost_out, reward_out, terminated_out, others_out, buffers = rollout
-    horizon = action_out.shape[1]
-    rollout_scene_in(scene_copy, sim_constants, 0, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-                     ego_out, action_out, cost_out, reward_out, terminated_out, others_out, False, buffers)
+    _policy_rollout(scene, scene_copy, sim_constants, policy, rollout, local, horizon_s, leader_depth)
+    ego_out, action_out = rollout[0], rollout[1]
     referenced = _read_cycle_counter()
     arrays.cycles[0] = referenced - start
     arrays.cycles[1] = 0
@@ -316,23 +342,31 @@ class CompiledPlannerStep:
                 np.empty((1, horizon + 1, 4)), np.empty((1, horizon, 2)), np.empty((1, horizon)),
                 np.empty((1, horizon)), np.zeros((1, horizon), dtype=np.bool_), np.empty((1, 1, 1, 4)),
                 rollout_buffers(scene.vehicle_count, sim_constants.lane_count, w0.shape[1], w1.shape[1],
-                                w2.shape[1])))
+                                w2.shape[1]), np.full(scene.vehicle_count, -1, dtype=np.int64)))
         return self._rollout_arrays[key]
 
-    def srmpc(self, scene, sim_constants, policy, ego, others, slot_vehicle, last_input, tracking_reference):
+    def srmpc(self, scene, sim_constants, policy, ego, others, slot_vehicle, last_input, tracking_reference,
+              local: bool = False, leader_depth: int = LEADER_DEPTH):
         """``srmpc_step`` from ``scene`` (a ``SceneState``, scene 0) with ``policy`` (a 2-hidden-layer
-        ``MlpPolicy``); returns (step outcome, solver status, iterations, started warm)."""
+        ``MlpPolicy``), on the whole scene or (``local``) its cut to the horizon with leader chains
+        ``leader_depth`` deep; returns (step outcome, solver status, iterations, started warm)."""
         scene_copy, rollout = self.rollout_arrays(scene, sim_constants, policy)
         (w0, w1, w2), (b0, b1, b2), low, high, squash = policy.packed
+        horizon_s = horizon_seconds(self.arrays.linearization_inputs.shape[0], sim_constants)
         result = srmpc_step(self.arrays, self.constants, self.solver.workspace, self.solver.memory,
                             scene.arrays(), scene_copy, sim_constants,
                             (w0, b0, w1, b1, w2, b2, low, high, squash), rollout, ego, others, slot_vehicle,
-                            last_input, tracking_reference)
+                            last_input, tracking_reference, bool(local), float(horizon_s), int(leader_depth))
         return self._finish(result, int(np.count_nonzero(slot_vehicle >= 0)))
 
     def last_rollout(self) -> tuple[np.ndarray, ...]:
         """The last SRMPC step's rollout outputs (ego, actions, cost, r', terminated), views of (1, ...) arrays."""
         return next(iter(self._rollout_arrays.values()))[1][:5]
+
+    def last_kept(self) -> np.ndarray:
+        """The last SRMPC step's simulated vehicles: their storage indices in the full scene, the ego last (a copy)."""
+        kept = next(iter(self._rollout_arrays.values()))[1][7]
+        return kept[kept >= 0].copy()
 
     def plan_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Copies of the last solution: states (N + 1, 4), inputs (N, 2), slacks (V,), sigmas (N, V)."""

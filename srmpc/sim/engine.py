@@ -87,8 +87,11 @@ def sort_by_x(vehicles: np.ndarray, order: np.ndarray, rank: np.ndarray, positio
 
 @njit(cache=True, error_model="numpy")
 def measure(s, c, b: int, observation: np.ndarray, slot_vehicle: np.ndarray, raw: np.ndarray) -> float:
-    """Write scene b's normalized float32 observation into ``observation`` (30,); return phi."""
-    n = c.vehicles
+    """Write scene b's normalized float32 observation into ``observation`` (30,); return phi.
+
+    The scene's vehicle count is its arrays' (``s.vehicles.shape[1]``, = ``c.vehicles`` on a full scene), so a
+    scene cut to fewer vehicles (``srmpc.sim.local_rollout``) runs with the same constants."""
+    n = s.vehicles.shape[1]
     ego = s.vehicles[b, n - 1]
     others = s.vehicles[b, : n - 1]
     find_observed_vehicles(ego, others, c.perception_range, slot_vehicle)
@@ -140,7 +143,7 @@ def workspace(n: int, lane_count: int) -> Workspace:
 @njit(cache=True, error_model="numpy")
 def simulate(s, c, b: int, steering: float, acceleration: float) -> None:
     """Advance scene b by one control step (``substeps`` integration steps) with the ego's action."""
-    simulate_in(s, c, b, steering, acceleration, workspace(c.vehicles, c.lane_count))
+    simulate_in(s, c, b, steering, acceleration, workspace(s.vehicles.shape[1], c.lane_count))
 
 
 @njit(cache=True, error_model="numpy")
@@ -149,9 +152,10 @@ def simulate_in(s, c, b: int, steering: float, acceleration: float, w) -> None:
 
     ``order`` is sorted by x before the leader search of the first sub-step and after every
     integration; positions do not move between that sort and the next sub-step's leader search
-    (collisions only mark impacts), so later sub-steps reuse it.
+    (collisions only mark impacts), so later sub-steps reuse it. The vehicle count is the scene's own
+    (``s.vehicles.shape[1]``, as in :func:`measure`); ``w`` may be sized for more vehicles.
     """
-    n = c.vehicles
+    n = s.vehicles.shape[1]
     ego = n - 1
     vehicles = s.vehicles[b]
     control = s.control[b]

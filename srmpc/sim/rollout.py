@@ -96,8 +96,10 @@ def copy_scene(source, target, b):
 @njit(cache=True, error_model="numpy")
 def rollout_scene_in(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
                      ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others, buffers):
-    """Scene b's MLP rollout (module doc) in place on ``s``, with preallocated ``buffers``."""
-    n = c.vehicles
+    """Scene b's MLP rollout (module doc) in place on ``s``, with preallocated ``buffers`` (sized for at least
+    the scene's vehicles). The vehicle count is the scene's own (``s.vehicles.shape[1]``): a scene cut by
+    ``srmpc.sim.local_rollout`` runs with the full scene's constants."""
+    n = s.vehicles.shape[1]
     ego = n - 1
     slot_vehicle, raw, observation, h0, h1, z, work = buffers
     phi = measure(s, c, b, observation, slot_vehicle, raw)
@@ -129,7 +131,7 @@ def rollout_scene_in(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash
 @njit(cache=True, error_model="numpy")
 def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
                        ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
-    buffers = rollout_buffers(c.vehicles, c.lane_count, w0.shape[1], w1.shape[1], w2.shape[1])
+    buffers = rollout_buffers(s.vehicles.shape[1], c.lane_count, w0.shape[1], w1.shape[1], w2.shape[1])
     rollout_scene_in(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
                      ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others, buffers)
 

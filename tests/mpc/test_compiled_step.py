@@ -69,19 +69,21 @@ def test_warm_started_plans_agree_with_clarabel(controller_name):
     assert max(errors) < FIRST_INPUT_TOLERANCE
 
 
-@pytest.mark.parametrize("controller_name", ["ltv_mpc", "srmpc"])
-def test_the_default_paths_take_the_compiled_step(controller_name):
-    """On the default config every step is one compiled call whose solution is the applied plan: the Python
-    path's QP (``LtvMpcPlanner.solve_about``) never runs, and the action is the compiled solution's u_0."""
+@pytest.mark.parametrize(("controller_name", "overrides"), [
+    ("ltv_mpc", []), ("srmpc", []), ("srmpc", ["controller.srmpc.rollout=local"])], ids=["ltv_mpc", "srmpc", "local"])
+def test_the_default_paths_take_the_compiled_step(controller_name, overrides):
+    """On the default config (and SRMPC's ``rollout=local``) every step is one compiled call whose solution is the
+    applied plan: the Python path's QP (``LtvMpcPlanner.solve_about``) never runs, and the action is the compiled
+    solution's u_0; with ``rollout=local`` the compiled call simulated fewer vehicles than the scene has."""
     config = to_objects(compose_config(["+experiment=light_traffic", "tracking.enabled=false",
-                                        f"controller={controller_name}"]))
+                                        f"controller={controller_name}", *overrides]))
     env = TwinScenarioEnv(config.scenario)
     controller = build_controller(config, env)
     compiled = controller.planner.compiled_step()
     assert compiled is not None
     calls = []
     compiled_call = getattr(compiled, controller_name)  # CompiledPlannerStep.ltv_mpc / .srmpc
-    setattr(compiled, controller_name, lambda *args: calls.append(1) or compiled_call(*args))
+    setattr(compiled, controller_name, lambda *args, **kwargs: calls.append(1) or compiled_call(*args, **kwargs))
 
     def python_qp(*args, **kwargs):
         raise AssertionError("the Python path's QP ran")
@@ -99,5 +101,7 @@ def test_the_default_paths_take_the_compiled_step(controller_name):
                                                "lane_following" if step == 0 else "shifted_previous")
         assert np.array_equal(action, compiled.solver.workspace[0].inputs[0])
         assert np.array_equal(plan.inputs, compiled.solver.workspace[0].inputs)
+        if overrides:
+            assert 1 < compiled.last_kept().size < env.unwrapped.simulator.constants.vehicles
         observation, _, terminated, truncated, _ = env.step(action)
         assert not (terminated or truncated)
