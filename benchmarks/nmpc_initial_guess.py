@@ -276,8 +276,8 @@ def summarize(records: list[dict]) -> dict:
 
 def qp_start_comparison(records: list[dict]) -> dict:
     """Per guess, the NMPC with warm-started QPs (the default; its repeated solve) and with every QP cold, solved
-    back to back (module doc): converged plans, SQP iterations (converged), interior-point iterations per QP (all, and those after
-    the first) and per solve, time."""
+    back to back (module doc): converged plans, SQP iterations (converged), interior-point iterations per QP
+    (all, and those after the first) and per solve, time."""
     table = {}
     for guess in GUESSES:
         entry = {}
