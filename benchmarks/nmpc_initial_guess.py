@@ -19,6 +19,12 @@ SQP with our Riccati interior-point QP solver, the table's planner OCP) is solve
 and IPOPT (``srmpc.mpc.nmpc.casadi_reference``, exact Hessian) from the same primal point. Timed: the
 NMPC's whole solve, process pinned to one core, numba on one thread, after a warm-up solve.
 
+- Warm- against cold-started QP subproblems: right after each NMPC solve, the same NMPC with every QP started
+  cold (``NmpcSettings(qp_warm_start=False)``, the revisions before the warm start) solves it, then the default
+  NMPC again, so that both compared solves see the same machine load and warm caches (the timed solve above
+  follows IPOPT's solves): converged plans, SQP iterations, interior-point iterations per QP and per solve, and
+  time, per guess (``qp_warm_start_vs_cold``).
+
 - Agreement with IPOPT: objective within ``AGREEMENT`` (relative), first input and trajectory within
   their absolute tolerances.
 - KKT certification of every converged NMPC plan: IPOPT warm-started at the plan (small barrier,
@@ -48,7 +54,7 @@ import numpy as np
 
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.controller_factory import build_controller
-from srmpc.mpc.nmpc import NmpcSolver
+from srmpc.mpc.nmpc import NmpcSettings, NmpcSolver
 from srmpc.mpc.problem import OcpStepData
 from srmpc.output_folder import atomic_write_text
 from srmpc.sim.single_env import TwinScenarioEnv
@@ -167,8 +173,15 @@ def certify(reference, planner_inputs: tuple, result) -> dict:
             "ipopt_dual_infeasibility": warm.dual_infeasibility}
 
 
-def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference) -> list[dict]:
-    """Per state and guess: the NMPC's and IPOPT's outcomes and, for a converged plan, its certification."""
+def qp_fields(result) -> dict:
+    """A solve's SQP and QP counts and time (``qp_warm_start_vs_cold``)."""
+    return {"converged": result.converged, "iterations": result.iterations, "time_s": result.solve_time_s,
+            "qp_iterations": [int(q) for q in result.qp_iterations]}
+
+
+def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, cold_solver: NmpcSolver) -> list[dict]:
+    """Per state and guess: the NMPC's and IPOPT's outcomes and, for a converged plan, its certification; the
+    same NMPC solve with cold-started QPs (module doc)."""
     records = []
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = state_inputs(states, i)
@@ -179,6 +192,8 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference) -> l
             guess_states, guess_inputs = guess_of(states, i, guess)
             step = OcpStepData(ego, guess_states, guess_inputs, tracking, last_input, others)
             result = solver.solve(step)
+            cold = cold_solver.solve(step)
+            repeated = solver.solve(step)
             start = solver.initial_point(step)
             ipopt = reference.solve(ego, last_input, others, tracking, start.states, start.inputs, start.slacks[:n],
                                     start.sigmas)
@@ -187,7 +202,8 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference) -> l
                    "objective": result.objective, "first_input": result.inputs[0].tolist(),
                    "ipopt_success": ipopt.success, "ipopt_status": ipopt.status,
                    "ipopt_iterations": ipopt.iterations, "ipopt_time_s": ipopt.solve_time_s,
-                   "ipopt_objective": ipopt.objective, **kkt_fields(result)}
+                   "ipopt_objective": ipopt.objective, **kkt_fields(result),
+                   "qps": qp_fields(repeated), "cold_qps": qp_fields(cold)}
             row.update(compare(result, ipopt))
             if result.converged:
                 row["certificate"] = certify(reference, (ego, last_input, others, tracking), result)
@@ -254,6 +270,32 @@ def summarize(records: list[dict]) -> dict:
             entry["qp_time_median_ms"] = float(np.median([row["qp_time_s"] for row in rows]) * 1e3)
         else:
             entry["share_from_rollout"] = float(np.mean([row["from_rollout"] for row in rows]))
+        table[guess] = entry
+    return table
+
+
+def qp_start_comparison(records: list[dict]) -> dict:
+    """Per guess, the NMPC with warm-started QPs (the default; its repeated solve) and with every QP cold, solved
+    back to back (module doc): converged plans, SQP iterations (converged), interior-point iterations per QP
+    (all, and those after the first) and per solve, time."""
+    table = {}
+    for guess in GUESSES:
+        entry = {}
+        for key, name in (("qps", "warm"), ("cold_qps", "cold")):
+            rows = [r[guess][key] for r in records]
+            converged = np.array([row["converged"] for row in rows])
+            iterations = np.array([row["iterations"] for row in rows], dtype=float)[converged]
+            per_qp = [q for row in rows for q in row["qp_iterations"]]
+            later = [q for row in rows for q in row["qp_iterations"][1:]]
+            time_ms = np.array([row["time_s"] for row in rows]) * 1e3
+            entry[name] = {
+                "converged": int(converged.sum()), "iterations_median": float(np.median(iterations)),
+                "iterations_mean": float(np.mean(iterations)),
+                "qp_iterations_per_qp_mean": float(np.mean(per_qp)),
+                "qp_iterations_after_the_first_qp_mean": float(np.mean(later)),
+                "qp_iterations_per_solve_median": float(np.median([sum(row["qp_iterations"]) for row in rows])),
+                "time_median_ms": float(np.median(time_ms)), "time_p99_ms": float(np.percentile(time_ms, 99))}
+        entry["time_median_ratio_warm_to_cold"] = entry["warm"]["time_median_ms"] / entry["cold"]["time_median_ms"]
         table[guess] = entry
     return table
 
@@ -454,10 +496,12 @@ def main() -> None:
 
     ocp, _ = planner_ocp(config)
     solver = NmpcSolver(ocp)
+    cold_solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=False))
     reference = IpoptReference(ocp)
     ego, last_input, others, tracking = state_inputs(states, 0)
-    solver.solve(OcpStepData(ego, *guess_of(states, 0, "policy_rollout"), tracking, last_input, others))  # compile
-    records = solve_all(states, solver, reference)
+    for nmpc in (solver, cold_solver):  # compile
+        nmpc.solve(OcpStepData(ego, *guess_of(states, 0, "policy_rollout"), tracking, last_input, others))
+    records = solve_all(states, solver, reference, cold_solver)
     table = summarize(records)
     rollout, constant = table["policy_rollout"], table["constant_velocity"]
     measured = {"policy_rollout_median_ms": rollout["time_median_ms"],
@@ -469,6 +513,7 @@ def main() -> None:
         "agreement_with_ipopt": agreement(records),
         "kkt_certification_by_ipopt": certification(records),
         "kkt_residual": kkt_summary(records),
+        "qp_warm_start_vs_cold": qp_start_comparison(records),
         "targets": {"policy_rollout_median_ms": {"limit": TARGETS["policy_rollout_median_ms"],
                                                  "measured": measured["policy_rollout_median_ms"],
                                                  "ratio_to_target": measured["policy_rollout_median_ms"]

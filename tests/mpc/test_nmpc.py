@@ -130,6 +130,40 @@ def test_nmpc_agrees_with_ipopt_from_the_same_guess(states, solver):
         np.testing.assert_allclose(warm.states, result.states, atol=KKT_DRIFT_TOLERANCE)
 
 
+@pytest.mark.parametrize("guess", ["rollout", "cv"])
+def test_warm_started_subproblems_converge_as_the_cold(states, solver, guess):
+    """QPs after the first warm-started (the default) converge to the same tolerance as cold-started ones, to the
+    same plan, in fewer interior-point iterations after the first QP (which starts cold either way)."""
+    cold = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=False))
+    assert solver.settings.qp_warm_start
+    warm_later, cold_later = 0, 0
+    for i in range(states["ego"].shape[0]):
+        ego, last_input, others, tracking = planner_inputs(states, i)
+        step = OcpStepData(ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking, last_input,
+                           others)
+        warm_result, cold_result = solver.solve(step), cold.solve(step)
+        assert warm_result.converged and cold_result.converged, (i, warm_result.status, cold_result.status)
+        for result in (warm_result, cold_result):
+            assert result.primal_infeasibility <= solver.settings.primal_tolerance
+            assert result.step_norms[-1] <= solver.settings.stationarity_tolerance
+        assert warm_result.qp_iterations[0] == cold_result.qp_iterations[0], i  # the first QP is cold in both
+        np.testing.assert_allclose(warm_result.inputs[0], cold_result.inputs[0], atol=FIRST_INPUT_TOLERANCE)
+        np.testing.assert_allclose(warm_result.states, cold_result.states, atol=TRAJECTORY_TOLERANCE)
+        warm_later += sum(warm_result.qp_iterations[1:])
+        cold_later += sum(cold_result.qp_iterations[1:])
+    assert warm_later < 0.8 * cold_later, (warm_later, cold_later)
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("qp_warm_start", "yes", "qp_warm_start='yes': must be true or false"),
+    ("qp_warm_start_iterations", 0, "qp_warm_start_iterations=0: must be an integer in [1, 50]"),
+])
+def test_bad_warm_start_setting_is_one_line(field, value, message):
+    with pytest.raises(ValueError) as raised:
+        NmpcSettings(**{field: value})
+    assert str(raised.value) == message
+
+
 def test_anderson_acceleration_reaches_the_plain_sqp_plan(states, solver):
     """The accelerated iteration (default) converges to the same plan as the plain Gauss-Newton SQP."""
     plain = NmpcSolver(OcpConfig(), NmpcSettings(anderson_depth=0))
@@ -257,8 +291,9 @@ def test_compact_subproblem_is_the_full_qp_bit_for_bit(states, warm):
         ego, last_input, others, tracking = planner_inputs(states, i)
         solver.solve(OcpStepData(ego, states["cv_states"][i], states["cv_inputs"][i], tracking, last_input, others))
         qp, rows = solver.qp, solver.qp.n_observed  # the last subproblem; the memory holds its solution
-        # both sides start warm (from the copied memory) or both cold: the NMPC itself starts its QPs cold
-        full = RiccatiInteriorPointSolver(tolerance=solver.settings.qp_tolerance, warm_start=warm)
+        # both sides start warm (from the copied memory, with the subproblems' unshifted warm start) or both cold
+        full = RiccatiInteriorPointSolver(tolerance=solver.settings.qp_tolerance, warm_start=warm,
+                                          warm_start_settings=solver.qp_solver.warm_start_settings)
         full.bind(qp)
         compact_memory = allocate_memory(horizon, 2 * solver.config.max_vehicles, solver.qp_solver.memory.z.size)
         for target in (full.memory, compact_memory):

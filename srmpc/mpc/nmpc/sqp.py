@@ -27,7 +27,18 @@ SQP (Gauss-Newton Hessian, l1 merit line search):
    while sigma_kj <= 1 suffices, which it always does on the NLP (g' >= 0); they stay in w
    (with their cost in F and in the safety row) so that every QP solution is a point of the NLP.
    The QP is solved by our Riccati interior-point method (``solvers.RiccatiInteriorPointSolver``)
-   and gives the step p_i = w_QP - w_i.
+   and gives the step p_i = w_QP - w_i. The first QP of a solve starts cold (the solver's own starting
+   point about x_i, u_i); each later one warm (``qp_warm_start``), from the current iterate and the
+   previous QP's multipliers, unshifted (the QPs of one solve are all at one instant, and p_i -> 0
+   near convergence): primal u_i rolled out through the new linearized dynamics, s and sigma those of
+   w_i in their rows' slots; each row's multipliers those of the previous QP's row of the same kind and
+   vehicle (0 for a row that screening just added), the bounds' as they were; inequality slacks
+   t = max(a^T w - b, ``SUBPROBLEM_WARM_SLACK_FLOOR``) and every pair lifted to t z >= 0.5 mu_0
+   (``solvers.ipm_start``). Safeguard: a warm start that has not solved the QP within
+   ``qp_warm_start_iterations`` interior-point iterations, or fails, is discarded and the QP solved
+   cold (the recorded iterations are then the sum). The QP's tolerance and the convergence test are
+   the same either way; warm and cold QPs reach the same solution to the QP's tolerance, so the SQP's
+   iterates differ from the cold-started ones only by that.
 2. **Convergence test (a KKT proxy).** p_i = 0 solves the QP at w_i exactly when w_i is a KKT point
    of the NLP (the QP's constraints are the NLP's linearization at w_i and the reduced Hessian is
    positive definite), so ||p_i||_inf stands in for stationarity. Converged: primal infeasibility
@@ -70,16 +81,25 @@ The initial guess (x, u) is clipped into the input and state boxes, x_0 set to x
 slacks start at the smallest values that satisfy the (exact) collision and safety constraints.
 
 Implementation: the whole SQP is one compiled call, ``_sqp``, steps 1-4 above in that order, on flat points
-w (``sqp_kernels``: F, theta, screening, the subproblem's assembly, Anderson's point) and on arrays allocated
-once per solver: the QP's stage-wise arrays (``LtvMpcQp``, which keeps the last subproblem) and the Riccati
-solver's workspace (``RiccatiInteriorPointSolver`` with ``warm_start=False``: every QP starts cold, from the
-solver's own starting point; the planner's warm start shifts the last solution by one control step, while the
-QPs of one SQP solve are all at one instant). Each QP is solved on max(rows, 1) vehicle slots instead of 2V
-(``solvers.solve_compact``), with the same floats.
-F and theta are summed in numpy's order and Anderson's least squares is numpy's LAPACK call, so every
-decision and iterate equals that of the numpy implementation of earlier revisions, bit for bit
-(``tests/mpc/test_nmpc.py`` tests the pieces; all 900 solves of ``benchmarks/nmpc_initial_guess.py``'s states
-were compared).
+w (``sqp_kernels``: F, theta, screening, the subproblem's assembly and warm start, Anderson's point) and on arrays
+allocated once per solver: the QP's stage-wise arrays (``LtvMpcQp``, which keeps the last subproblem) and the
+Riccati solver's workspace and warm-start memory (``RiccatiInteriorPointSolver`` with the subproblems' warm-start
+settings: stage shift 0, slack floor, iteration limit; the planner's own warm start shifts the last solution by
+one control step). Each QP is solved on max(rows, 1) vehicle slots instead of 2V (``solvers.solve_compact``),
+with the same floats. F and theta are summed in numpy's order and Anderson's least squares is numpy's LAPACK
+call; with ``qp_warm_start=False`` (every QP cold, the revisions before the warm start) every decision and
+iterate equals that of the numpy implementation of earlier revisions, bit for bit (``tests/mpc/test_nmpc.py``
+tests the pieces; all 900 solves of ``benchmarks/nmpc_initial_guess.py``'s states were compared).
+
+Warm-started subproblems: on the 300 states of ``benchmarks/nmpc_initial_guess.py`` the SQP takes the same
+iterations as with cold QPs (the QPs' solutions agree to their tolerance) and the QPs after the first take
+fewer interior-point iterations (before/after in docs/planner.md, from ``results/benchmarks/
+nmpc_initial_guess.json``). The slack floor 1e-3 and the limit of 15 iterations were chosen on those states:
+floors of 1e-1 and 1e-5 took more iterations, a mu_0 floor of 1e-5 instead of 1e-3 changed no iterate, and a
+limit of 10 discarded warm starts that would have converged in 11 to 15 iterations. Inexact early QPs (a looser
+QP tolerance while ||p_i||_inf is large, the QP re-solved at ``qp_tolerance`` before a step may pass the test) were
+tried on the same states and left out: they saved interior-point iterations but added SQP iterations, and most
+settings of the looser tolerance and its switch-over step lost converged plans.
 """
 
 from __future__ import annotations
@@ -109,9 +129,17 @@ from srmpc.mpc.nmpc.sqp_kernels import (
     point_size,
     qp_candidate,
     screen,
+    warm_start_memory,
 )
 from srmpc.mpc.problem import KinematicBicycle, LtvMpcQp, OcpConfig, OcpStepData
-from srmpc.mpc.solvers import STATUS_SOLVED, RiccatiInteriorPointSolver, allocate_compact, solve_compact
+from srmpc.mpc.solvers import (
+    RICCATI_IPM_MAX_ITERATIONS,
+    STATUS_SOLVED,
+    RiccatiInteriorPointSolver,
+    allocate_compact,
+    solve_compact,
+)
+from srmpc.value_checks import NON_NEGATIVE, POSITIVE, Interval, check_fields
 
 STATUS_CONVERGED = "converged"
 STATUS_MAX_ITERATIONS = "max_iterations"
@@ -120,6 +148,15 @@ STATUS_QP_FAILED = "qp_failed"
 STATUSES = (STATUS_CONVERGED, STATUS_MAX_ITERATIONS, STATUS_LINE_SEARCH_FAILED, STATUS_QP_FAILED)
 """The statuses by ``_sqp``'s status code (their index)."""
 _CONVERGED, _MAX_ITERATIONS, _LINE_SEARCH_FAILED, _QP_FAILED = range(4)
+
+SUBPROBLEM_WARM_START_MU = 1e-3
+"""Lowest complementarity mu_0 of a warm-started subproblem (objective units; module doc, step 1)."""
+SUBPROBLEM_WARM_CENTRALITY = 0.5
+"""Each warm pair starts with t_i z_i >= this fraction of mu_0 (dimensionless)."""
+SUBPROBLEM_WARM_SLACK_FLOOR = 1e-3
+"""Smallest starting slack t_i of a warm-started subproblem (constraint units: m, m/s, rad, m/s^2, ellipse norm)."""
+SUBPROBLEM_WARM_STAGE_SHIFT = 0
+"""The subproblems of one solve are at one instant: the warm start shifts nothing (stages)."""
 
 
 @dataclass(frozen=True)
@@ -142,6 +179,10 @@ class NmpcSettings:
             ellipse norm stays at or above this value over the whole iterate and its slacks are 0
             (dimensionless, ellipse-norm units; module doc).
         anderson_depth: m, the most past steps Anderson acceleration combines (0: off; module doc).
+        qp_warm_start: start each QP after the first from the current iterate and the previous QP's multipliers
+            (module doc, step 1); False: every QP starts cold.
+        qp_warm_start_iterations: interior-point iterations a warm-started QP may take before it is solved again
+            from the cold start (the safeguard; at most ``RICCATI_IPM_MAX_ITERATIONS``).
     """
 
     primal_tolerance: float = 1e-6
@@ -155,6 +196,19 @@ class NmpcSettings:
     qp_tolerance: float = 1e-7
     screening_norm: float = 3.0
     anderson_depth: int = 5
+    qp_warm_start: bool = True
+    qp_warm_start_iterations: int = 15
+
+    def __post_init__(self) -> None:
+        check_fields(self, primal_tolerance=POSITIVE, stationarity_tolerance=POSITIVE,
+                     max_iterations=Interval(low=1), armijo=Interval(0.0, 1.0, low_open=True, high_open=True),
+                     backtracking=Interval(0.0, 1.0, low_open=True, high_open=True), min_step=POSITIVE,
+                     descent_fraction=Interval(0.0, 1.0, high_open=True), penalty_margin=NON_NEGATIVE,
+                     qp_tolerance=POSITIVE, screening_norm=Interval(low=1.0, low_open=True),
+                     anderson_depth=Interval(low=0),
+                     qp_warm_start_iterations=Interval(1, RICCATI_IPM_MAX_ITERATIONS))
+        if not isinstance(self.qp_warm_start, bool):
+            raise ValueError(f"qp_warm_start={self.qp_warm_start!r}: must be true or false")
 
 
 @dataclass
@@ -228,6 +282,9 @@ SqpSettings = namedtuple("SqpSettings", [
 QpSettings = namedtuple("QpSettings", ["constants", "tolerance", "max_iterations", "warm_start",
                                        "warm_start_settings"])
 """The Riccati solver's ``SolverConstants`` and settings (``RiccatiInteriorPointSolver``)."""
+SubproblemWarmStart = namedtuple("SubproblemWarmStart", ["previous_rows", "previous_counts", "sources", "scratch_z"])
+"""What the warm start of the next QP needs (``warm_start_memory``): the last QP's collision and safety rows'
+vehicles (2, V) and their numbers (2,); scratch (2V,) and (m,)."""
 SqpRecord = namedtuple("SqpRecord", ["qp_cycles", "qp_iterations", "qp_rows", "step_norms", "step_lengths",
                                      "iterates", "images"])
 """Per iteration (max_iterations,): the QP's cycles, interior-point iterations and rows, ||p||_inf, alpha;
@@ -275,18 +332,26 @@ def _remember_pair(iterates, images, oldest, stored, w, image):
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _solve_subproblem(w, horizon, n_obs, frames, nlp, scratch, qp, qp_settings, workspace, memory, compact, record,
-                      iteration, candidate):
+                      iteration, candidate, warm):
     """Step 1 (module doc): the QP subproblem linearized about w (screened rows), solved by the Riccati interior
-    point, its point w_QP into ``candidate``; the QP's cycles, iterations and rows into ``record`` at ``iteration``.
-    Returns whether it was solved and its point is one of the NLP (else the warm-start memory is invalidated)."""
+    point (warm from w and the previous QP's multipliers when asked to and the previous QP was solved), its point
+    w_QP into ``candidate``; the QP's cycles, iterations and rows into ``record`` at ``iteration``; its rows'
+    vehicles into ``warm`` (``SubproblemWarmStart``). Returns whether it was solved and its point is one of the
+    NLP (else the warm-start memory is invalidated)."""
     n_collision, n_safety = screen(w, horizon, n_obs, frames, nlp, scratch, qp.collision_rows, qp.safety_rows)
     n_rows = linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, nlp, qp)
     started = read_cycle_counter()
+    if qp_settings.warm_start and memory.valid[0]:
+        warm_start_memory(w, horizon, n_obs, qp, n_collision, n_safety, warm.previous_rows, warm.previous_counts,
+                          memory, warm.sources, warm.scratch_z)
     qp_status, qp_iterations, solution = solve_compact(qp, n_rows, qp.measured_state, qp_settings, workspace,
                                                        memory, compact)
     record.qp_cycles[iteration] = read_cycle_counter() - started
     record.qp_iterations[iteration] = qp_iterations
     record.qp_rows[iteration] = n_rows
+    warm.previous_rows[0, :n_collision] = qp.collision_rows[:n_collision]
+    warm.previous_rows[1, :n_safety] = qp.safety_rows[:n_safety]
+    warm.previous_counts[0], warm.previous_counts[1] = n_collision, n_safety
     if qp_status != STATUS_SOLVED:
         return False
     if not qp_candidate(w, horizon, n_obs, solution, n_collision, n_safety, qp, candidate):
@@ -355,9 +420,13 @@ def _sqp(others, n_obs, initial_states, initial_inputs, nlp, settings, qp, qp_se
     penalty, stationarity, status = 0.0, np.inf, _MAX_ITERATIONS
     iterations, line_searches, accelerated_steps = 0, 0, 0
     oldest, stored = 0, 0  # Anderson's pairs: the ring's oldest slot and the pairs it holds
+    memory.valid[0] = False  # the first QP starts cold
+    n_slots = qp.collision_rows.shape[0]
+    warm = SubproblemWarmStart(np.zeros((2, n_slots), dtype=np.int64), np.zeros(2, dtype=np.int64),
+                               np.empty(2 * n_slots, dtype=np.int64), np.empty(memory.z.shape[0]))
     for _ in range(settings.max_iterations):
         solved = _solve_subproblem(w, horizon, n_obs, frames, nlp, scratch, qp, qp_settings, workspace, memory,
-                                   compact, record, iterations, candidate)  # 1.
+                                   compact, record, iterations, candidate, warm)  # 1.
         iterations += 1
         if not solved:
             status = _QP_FAILED
@@ -413,9 +482,13 @@ class NmpcSolver:
         horizon, n_slots = config.horizon, config.max_vehicles
         self.qp = LtvMpcQp(dataclasses.replace(config, max_vehicles=2 * n_slots))
         self.model = KinematicBicycle(config.bicycle)
-        # cold-started QPs: the planner's warm start shifts the last solution by one control step, but the QPs
-        # of one SQP solve are all at the same instant
-        self.qp_solver = RiccatiInteriorPointSolver(tolerance=settings.qp_tolerance, warm_start=False)
+        # the planner's warm start shifts the last solution by one control step, but the QPs of one SQP solve are
+        # all at the same instant: an unshifted warm start from the current iterate (module doc, step 1)
+        self.qp_solver = RiccatiInteriorPointSolver(
+            tolerance=settings.qp_tolerance, max_iterations=RICCATI_IPM_MAX_ITERATIONS,
+            warm_start=settings.qp_warm_start,
+            warm_start_settings=(SUBPROBLEM_WARM_START_MU, SUBPROBLEM_WARM_CENTRALITY, SUBPROBLEM_WARM_SLACK_FLOOR,
+                                 SUBPROBLEM_WARM_STAGE_SHIFT, int(settings.qp_warm_start_iterations)))
         self.qp_solver.bind(self.qp)
         geometry, weights = config.geometry, config.weights
         self.nlp = NlpConstants(

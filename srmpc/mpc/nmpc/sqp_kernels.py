@@ -12,6 +12,7 @@ Kernels (``sqp._sqp`` calls them in the order of the module doc's steps):
 - ``initial_point``: the guess clipped into the boxes, x_0 = x_hat, the smallest feasible slacks;
 - ``screen`` and ``linearize_subproblem``: the QP's rows at w (screening), written into the QP's stage-wise
   arrays with the dynamics' Jacobians, as ``LtvMpcQp.update`` and ``linearize_ellipse_rows`` write them;
+- ``warm_start_memory``: the QP solver's warm start for the next subproblem (w and the last QP's multipliers);
 - ``qp_candidate``: the QP's solution as a point (the screened slacks keep their values);
 - ``anderson_point``: the type-II Anderson point of the stored pairs (w, G(w)), projected into the boxes.
 
@@ -31,6 +32,7 @@ import numpy as np
 
 from srmpc.mpc.nmpc.nonlinear_constraints import linearize_ellipse_rows, min_ellipse_norms
 from srmpc.mpc.problem import linearize_horizon
+from srmpc.mpc.solvers import reorder_memory_slots
 
 SAFETY_SLACK_UPPER = 10.0
 """Upper box of the safety slacks sigma_kj in the QP subproblem (ellipse-norm units, dimensionless).
@@ -365,6 +367,43 @@ def linearize_subproblem(w, horizon, n_obs, frames, n_collision, n_safety, const
                                constants.safety_semi_axes_m, qp.coefficients[:, n_collision:],
                                qp.row_lower[:, n_collision:], qp.row_norms)
     return n_rows
+
+
+@numba.njit(cache=True, error_model="numpy")
+def warm_start_memory(w, horizon, n_obs, qp, n_collision, n_safety, previous_rows, previous_counts, memory, sources,
+                      scratch_z):
+    """The QP solver's warm-start memory (``solvers.WarmStartMemory``, its slots the rows of the subproblem in
+    ``qp``) for the subproblem at w (``sqp``'s module doc, step 1): the primal part w's inputs, slacks and sigmas
+    in their rows' slots (``qp_candidate`` in reverse; the solver rolls the inputs out through the linearized
+    dynamics), the multipliers those the previous QP left in ``memory`` (``reorder_memory_slots``): the stage
+    groups' as they are, a row's those of the previous QP's row of the same kind (collision or safety) and
+    vehicle, 0 if it had none. ``previous_rows`` (2, V): the previous QP's collision and safety vehicles,
+    ``previous_counts`` (2,) their numbers; ``sources`` (>= 2V,) and ``scratch_z`` (m,) are scratch."""
+    _, inputs, slacks, sigmas = point_parts(w, horizon, n_obs)
+    n_rows = n_collision + n_safety
+    for row in range(n_rows):
+        sources[row] = -1
+        if row < n_collision:
+            vehicle = qp.collision_rows[row]
+            for previous in range(previous_counts[0]):
+                if previous_rows[0, previous] == vehicle:
+                    sources[row] = previous
+        else:
+            vehicle = qp.safety_rows[row - n_collision]
+            for previous in range(previous_counts[1]):
+                if previous_rows[1, previous] == vehicle:
+                    sources[row] = previous_counts[0] + previous
+    reorder_memory_slots(memory, sources, n_rows, scratch_z)
+    memory.inputs[:, :] = inputs
+    memory.slacks[:] = 0.0
+    memory.sigmas[:, :] = 0.0
+    for row in range(n_collision):
+        memory.slacks[row] = slacks[qp.collision_rows[row]]
+    for row in range(n_safety):
+        vehicle = qp.safety_rows[row]
+        memory.slacks[n_collision + row] = slacks[n_obs + vehicle]
+        for k in range(horizon):
+            memory.sigmas[k, n_collision + row] = sigmas[k, vehicle]
 
 
 @numba.njit(cache=True, error_model="numpy")

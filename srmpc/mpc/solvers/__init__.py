@@ -29,7 +29,7 @@ from srmpc.mpc.solvers.adapters import (
 from srmpc.mpc.solvers.interior_point import solve_cold_in, solve_in, solve_ltv_mpc_qp
 from srmpc.mpc.solvers.ipm_compact import CompactQp, allocate_compact, compact_multipliers, solve_compact
 from srmpc.mpc.solvers.ipm_iteration import STATUS_NAMES, STATUS_SOLVED
-from srmpc.mpc.solvers.ipm_start import WARM_START_SETTINGS, WarmStartMemory, allocate_memory
+from srmpc.mpc.solvers.ipm_start import WARM_START_SETTINGS, WarmStartMemory, allocate_memory, reorder_memory_slots
 from srmpc.mpc.solvers.ipm_workspace import Primal, allocate_workspace, qp_tuple
 
 __all__ = [
@@ -57,6 +57,7 @@ __all__ = [
     "compact_multipliers",
     "make_solver",
     "qp_tuple",
+    "reorder_memory_slots",
     "solve_cold_in",
     "solve_compact",
     "solve_in",

@@ -241,7 +241,9 @@ class RiccatiInteriorPointSolver:
     linearized dynamics. Any status other than solved is a failed solve (the planner's fallback chain
     takes over).
 
-    ``warm_start=False`` (the solver name ``riccati_ipm_cold``) starts every solve cold: the planner's floats
+    ``warm_start_settings``: ``ipm_start.WARM_START_SETTINGS``' layout (mu_0 floor, centrality, slack floor,
+    stage shift, warm iteration limit); the planner's by default. ``warm_start=False`` (the solver name
+    ``riccati_ipm_cold``) starts every solve cold: the planner's floats
     of the revisions before the warm start, bit for bit (``tests/mpc/test_compiled_step.py`` checks that the
     compiled step and the Python path agree bit for bit in that mode). Warm, the first input stays within
     1e-3 of Clarabel's (same test) and the interior point takes 7 iterations at the median instead of 9
@@ -253,11 +255,13 @@ class RiccatiInteriorPointSolver:
 
     def __init__(self, tolerance: float = RICCATI_IPM_TOLERANCE,
                  max_iterations: int = RICCATI_IPM_MAX_ITERATIONS,
-                 warm_start: bool = True) -> None:
+                 warm_start: bool = True, warm_start_settings: tuple | None = None) -> None:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
         self.warm_start = bool(warm_start)
-        self.warm_start_settings = WARM_START_SETTINGS
+        # the planner's (``WARM_START_SETTINGS``), its warm iterations bounded by the solver's own limit
+        self.warm_start_settings = (tuple(warm_start_settings) if warm_start_settings is not None
+                                    else (*WARM_START_SETTINGS[:4], self.max_iterations))
         self.last_started_warm = False
         self._constants_for: LtvMpcQp | None = None
 

@@ -48,8 +48,9 @@ dynamics multipliers nu recovered by the backward recursion nu_k = A_k^T nu_{k+1
 ``STATUS_SOLVED`` must be treated as a failed solve.
 
 Warm start: ``solve_in`` starts from the shifted previous solution when asked to and its memory is valid
-(``ipm_start``); if the warm-started iterations do not reach ``STATUS_SOLVED``, the QP is solved again from
-the cold start (the reported iterations are then the sum). A failed or absent previous solution (new episode,
+(``ipm_start``); if the warm-started iterations do not reach ``STATUS_SOLVED`` within the warm start's
+iteration limit (its settings'; at most ``max_iterations``), the QP is solved again from the cold start (the
+reported iterations are then the sum). A failed or absent previous solution (new episode,
 a fallback step) means the cold start.
 
 Code layout, one module per part, in the order a solve runs them:
@@ -95,8 +96,8 @@ def solve_in(measured_state, qp, initial_inputs, tolerance, max_iterations, work
     """Solve a ``qp_tuple`` in an ``allocate_workspace``, warm if ``warm`` and ``memory`` is valid, else
     from the cold start about ``initial_inputs`` (as ``solve_ltv_mpc_qp``); a failed warm start is retried cold.
 
-    ``settings``: ``WARM_START_SETTINGS``. Returns (status, iterations, started warm); the solution is in
-    ``workspace[0]``, and in ``memory`` for the next call if solved.
+    ``settings``: ``WARM_START_SETTINGS``' layout (its last entry bounds the warm iterations). Returns (status,
+    iterations, started warm); the solution is in ``workspace[0]``, and in ``memory`` for the next call if solved.
     """
     point, arrays, gradients, newton, direction = workspace
     iterations = 0
@@ -105,7 +106,7 @@ def solve_in(measured_state, qp, initial_inputs, tolerance, max_iterations, work
         ineq = prepare_inequalities(qp, workspace)
         warm_start(qp, measured_state, memory, ineq, point, direction.inputs, settings)
         status, iterations = iterate(qp, point, ineq, gradients, newton, direction, tolerance,
-                                     max_iterations)
+                                     min(settings[4], max_iterations))
         if status == STATUS_SOLVED:
             remember(point, ineq, memory)
             return status, iterations, True

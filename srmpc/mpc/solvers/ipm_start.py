@@ -1,4 +1,4 @@
-"""The interior point's starting points (``interior_point``): cold, and warm from the shifted previous solution.
+"""The interior point's starting points (``interior_point``): cold, and warm from the (shifted) previous solution.
 
 Cold start (``cold_start``): the inputs ``initial_inputs`` (N, 2) clipped into their box, ``INITIAL_INPUT_MARGIN``
 of its width from the bounds; the states rolled out from x_hat through the linear dynamics (so every iterate
@@ -21,6 +21,11 @@ shifted by one stage, is close to the new one. When the previous solve succeeded
    ``WARM_CENTRALITY`` mu_0 (z_i raised) with mu_0 = max(mean t z, ``WARM_START_MU``), so the
    iterations start from a well-centred point of complementarity about mu_0.
 
+The shift is the settings' stage shift: 1 for the planner's QPs, 0 for the QPs of one SQP solve (all at one
+instant; ``srmpc.mpc.nmpc``, which writes the memory's primal part and reorders its vehicle slots with
+``reorder_memory_slots`` before each warm solve). A warm start that has not solved the QP after the settings'
+iteration limit is abandoned and the QP solved again from the cold start (``interior_point.solve_in``).
+
 The memory of the last solved QP (``WarmStartMemory``) is kept by ``remember``; the solves that use both
 starts are ``interior_point.solve_in`` and ``solve_cold_in``.
 """
@@ -32,7 +37,7 @@ from collections import namedtuple
 import numba
 import numpy as np
 
-from srmpc.mpc.solvers.ipm_workspace import constraint_values
+from srmpc.mpc.solvers.ipm_workspace import constraint_values, inequality_offsets
 
 INITIAL_SLACK = 1.0
 """Lower bound on the starting inequality slacks t_0 = max(a^T w_0 - b, .) (constraint units)."""
@@ -48,8 +53,15 @@ WARM_CENTRALITY = 0.5
 WARM_SLACK_FLOOR = 1e-1
 """Smallest starting slack t_i of a warm start (constraint units)."""
 
-WARM_START_SETTINGS = (WARM_START_MU, WARM_CENTRALITY, WARM_SLACK_FLOOR)
-"""The warm start's (mu_0 floor, centrality fraction, slack floor), ``interior_point.solve_in``'s ``settings``."""
+WARM_STAGE_SHIFT = 1
+"""Stages the previous solution is shifted by (stages): the planner's consecutive QPs are one control period apart."""
+WARM_MAX_ITERATIONS = 50
+"""Most iterations of a warm-started solve before it is retried cold (iterations); ``RiccatiInteriorPointSolver``
+puts its own ``max_iterations`` here, so that the planner's warm start is bounded by that limit alone."""
+
+WARM_START_SETTINGS = (WARM_START_MU, WARM_CENTRALITY, WARM_SLACK_FLOOR, WARM_STAGE_SHIFT, WARM_MAX_ITERATIONS)
+"""The warm start's (mu_0 floor, centrality fraction, slack floor, stage shift, iteration limit), the planner's;
+``interior_point.solve_in``'s ``settings``."""
 
 WarmStartMemory = namedtuple("WarmStartMemory", ["inputs", "slacks", "sigmas", "z", "valid"])
 """The last solved QP's inputs (N, 2), slacks (V,), sigmas (N, V), multipliers z (m,); valid (1,) bool:
@@ -123,13 +135,14 @@ def cold_start(qp, measured_state, initial_inputs, ineq, point):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _shift_multipliers(offsets, horizon, n_slots, previous, out):
-    """z shifted one stage per group (module doc, item 2); s_j >= 0 rows keep their slot."""
+def _shift_multipliers(offsets, horizon, n_slots, previous, out, shift):
+    """z shifted ``shift`` stages per group (module doc, item 2; the last stage repeated); s_j >= 0 rows keep
+    their slot."""
     (o_row, o_slo, o_sglo, o_sghi, o_ylo, o_yhi, o_vlo, o_vhi, o_ulo, o_uhi, _) = offsets
     for start, width in ((o_row, n_slots), (o_sglo, n_slots), (o_sghi, n_slots), (o_ylo, 1),
                          (o_yhi, 1), (o_vlo, 1), (o_vhi, 1), (o_ulo, 2), (o_uhi, 2)):
         for k in range(horizon):
-            source = min(k + 1, horizon - 1)
+            source = min(k + shift, horizon - 1)
             for r in range(width):
                 out[start + k * width + r] = previous[start + source * width + r]
     for j in range(n_slots):
@@ -137,11 +150,11 @@ def _shift_multipliers(offsets, horizon, n_slots, previous, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _warm_primal(qp, measured_state, memory, has_sigma, shifted_inputs, point):
-    """Module doc, item 1, into ``point`` (``shifted_inputs`` (N, 2) is scratch)."""
+def _warm_primal(qp, measured_state, memory, has_sigma, shifted_inputs, point, shift):
+    """Module doc, item 1, shifted ``shift`` stages, into ``point`` (``shifted_inputs`` (N, 2) is scratch)."""
     horizon = shifted_inputs.shape[0]
     for k in range(horizon):
-        source = min(k + 1, horizon - 1)
+        source = min(k + shift, horizon - 1)
         shifted_inputs[k, 0] = memory.inputs[source, 0]
         shifted_inputs[k, 1] = memory.inputs[source, 1]
     _starting_point(qp, measured_state, shifted_inputs, has_sigma, point)
@@ -149,7 +162,7 @@ def _warm_primal(qp, measured_state, memory, has_sigma, shifted_inputs, point):
         point.slacks[j] = max(memory.slacks[j], 0.0)
         for k in range(horizon):
             if has_sigma[k, j]:
-                sigma = memory.sigmas[min(k + 1, horizon - 1), j]
+                sigma = memory.sigmas[min(k + shift, horizon - 1), j]
                 point.sigmas[k, j] = min(max(sigma, 0.0), qp.sigma_upper[k, j])
 
 
@@ -157,11 +170,11 @@ def _warm_primal(qp, measured_state, memory, has_sigma, shifted_inputs, point):
 def _warm_inequalities(qp, memory, point, ineq, settings):
     """Module doc, items 2-4: t and z of the warm start on the active rows (t = 1, z = 0 elsewhere)."""
     horizon, n_slots = qp.coefficients.shape[0], qp.coefficients.shape[1]
-    mu_floor, centrality, slack_floor = settings
+    mu_floor, centrality, slack_floor, shift, _ = settings
     values, active, t, z = ineq.values, ineq.active, ineq.t, ineq.z
     constraint_values(point.states, point.inputs, point.slacks, point.sigmas, qp.coefficients,
                       qp.row_lower, qp.sigma_upper, qp.bounds, ineq.offsets, values)
-    _shift_multipliers(ineq.offsets, horizon, n_slots, memory.z, z)
+    _shift_multipliers(ineq.offsets, horizon, n_slots, memory.z, z, shift)
     complementarity = 0.0
     for i in range(values.shape[0]):
         if active[i]:
@@ -191,5 +204,27 @@ def remember(point, ineq, memory):
 def warm_start(qp, measured_state, memory, ineq, point, shifted_inputs, settings):
     """The warm start (module doc; ``_warm_primal``, ``_warm_inequalities``) from a valid ``memory`` into point and
     ineq; ``shifted_inputs`` (N, 2) is scratch, ``settings`` ``WARM_START_SETTINGS``."""
-    _warm_primal(qp, measured_state, memory, ineq.has_sigma, shifted_inputs, point)
+    _warm_primal(qp, measured_state, memory, ineq.has_sigma, shifted_inputs, point, settings[3])
     _warm_inequalities(qp, memory, point, ineq, settings)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def reorder_memory_slots(memory, sources, n_slots, previous_z):
+    """The memory's multipliers of the vehicle-slot groups (rows, s >= 0, sigma >= 0, sigma <= sigma_hi) moved
+    between slots: slot j < n_slots takes those of slot ``sources[j]`` (-1: none, z = 0, which the warm start's
+    centrality correction lifts), the slots from n_slots on get 0; the stage groups (state and input bounds) keep
+    theirs. ``previous_z`` (m,) is scratch. The primal part (inputs, slacks, sigmas) is left to the caller."""
+    horizon, n_full = memory.sigmas.shape
+    offsets = inequality_offsets(horizon, n_full)
+    o_row, o_slo, o_sglo, o_sghi, o_ylo = offsets[0], offsets[1], offsets[2], offsets[3], offsets[4]
+    previous_z[:] = memory.z
+    memory.z[:o_ylo] = 0.0
+    for j in range(n_slots):
+        source = sources[j]
+        if source < 0:
+            continue
+        memory.z[o_slo + j] = previous_z[o_slo + source]
+        for k in range(horizon):
+            memory.z[o_row + k * n_full + j] = previous_z[o_row + k * n_full + source]
+            memory.z[o_sglo + k * n_full + j] = previous_z[o_sglo + k * n_full + source]
+            memory.z[o_sghi + k * n_full + j] = previous_z[o_sghi + k * n_full + source]
