@@ -131,11 +131,12 @@ def test_nmpc_agrees_with_ipopt_from_the_same_guess(states, solver):
 
 
 @pytest.mark.parametrize("guess", ["rollout", "cv"])
-def test_warm_started_subproblems_converge_as_the_cold(states, solver, guess):
-    """QPs after the first warm-started (the default) converge to the same tolerance as cold-started ones, to the
-    same plan, in fewer interior-point iterations after the first QP (which starts cold either way)."""
-    cold = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=False))
-    assert solver.settings.qp_warm_start
+def test_warm_started_subproblems_converge_as_the_cold(states, guess):
+    """QPs after the first warm-started (``qp_warm_start``) converge to the same tolerance as cold-started ones (the
+    default), to the same plan, in fewer interior-point iterations after the first QP (which starts cold either way)."""
+    solver = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True))
+    cold = NmpcSolver(OcpConfig())
+    assert not cold.settings.qp_warm_start
     warm_later, cold_later = 0, 0
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = planner_inputs(states, i)

@@ -180,7 +180,9 @@ class NmpcSettings:
             (dimensionless, ellipse-norm units; module doc).
         anderson_depth: m, the most past steps Anderson acceleration combines (0: off; module doc).
         qp_warm_start: start each QP after the first from the current iterate and the previous QP's multipliers
-            (module doc, step 1); False: every QP starts cold.
+            (module doc, step 1); False: every QP starts cold. Off by default until the published NMPC
+            evaluations are regenerated with it (their closed loops were run with cold QPs; the next full
+            ``dvc repro`` turns it on): ``benchmarks/nmpc_initial_guess.py`` measures both.
         qp_warm_start_iterations: interior-point iterations a warm-started QP may take before it is solved again
             from the cold start (the safeguard; at most ``RICCATI_IPM_MAX_ITERATIONS``).
     """
@@ -196,7 +198,7 @@ class NmpcSettings:
     qp_tolerance: float = 1e-7
     screening_norm: float = 3.0
     anderson_depth: int = 5
-    qp_warm_start: bool = True
+    qp_warm_start: bool = False
     qp_warm_start_iterations: int = 15
 
     def __post_init__(self) -> None:
