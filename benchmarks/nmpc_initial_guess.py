@@ -17,7 +17,8 @@ SQP with our Riccati interior-point QP solver, the table's planner OCP) is solve
   and iterations are the sum of both solves);
 
 and IPOPT (``srmpc.mpc.nmpc.casadi_reference``, exact Hessian) from the same primal point. Timed: the
-NMPC's whole solve (its QPs after the first warm-started, ``NmpcSettings(qp_warm_start=True)``), process pinned to one core, numba on one thread, after a warm-up solve.
+NMPC's whole solve (its QPs after the first warm-started, ``NmpcSettings(qp_warm_start=True)``), process
+pinned to one core, numba on one thread, after a warm-up solve.
 
 - Warm- against cold-started QP subproblems: right after each NMPC solve, the same NMPC with every QP started
   cold (``NmpcSettings(qp_warm_start=False)``, the revisions before the warm start) solves it, then the warm-started
@@ -275,9 +276,9 @@ def summarize(records: list[dict]) -> dict:
 
 
 def qp_start_comparison(records: list[dict]) -> dict:
-    """Per guess, the NMPC with warm-started QPs (``qp_warm_start=True``, the solver of the other tables; its repeated solve) and with every QP cold, solved
-    back to back (module doc): converged plans, SQP iterations (converged), interior-point iterations per QP
-    (all, and those after the first) and per solve, time."""
+    """Per guess, the NMPC with warm-started QPs (``qp_warm_start=True``, the solver of the other tables; its
+    repeated solve) and with every QP cold, solved back to back (module doc): converged plans, SQP iterations
+    (converged), interior-point iterations per QP (all, and those after the first) and per solve, time."""
     table = {}
     for guess in GUESSES:
         entry = {}

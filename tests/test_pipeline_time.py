@@ -129,6 +129,27 @@ def test_projections_reproduce_the_measured_machine_and_scale_the_parallel_stage
     assert result["slurm_cluster"]["critical_path_s"] == pytest.approx(slurm)
 
 
+def test_slurm_projection_schedules_one_core_jobs_after_their_upstream_stages():
+    """Shards of 50 episodes and training runs are one-core jobs with the per-job overhead; a stage's jobs start when
+    its upstream stages are done; with few cores the jobs queue (longest first), with many the critical path rules."""
+    runs = [{"stage": "train", "wall_s": 100.0} for _ in range(4)]
+    start = pipeline_time.EVALUATION_START_S
+    stages = [{"name": "train", "kind": "training", "wall_s": 200.0},
+              {"name": "evaluate@a-light", "kind": "downstream", "wall_s": start + 50.0},  # 100 core-s on 2 cores
+              {"name": "table", "kind": "downstream", "wall_s": 2.0}]
+    upstreams = {"train": set(), "evaluate@a-light": {"train"}, "table": {"evaluate@a-light"}}
+    jobs = {s["name"]: pipeline_time.slurm_jobs(s, runs, {"evaluate"}, 2, 200, 5.0) for s in stages}
+    assert jobs == {"train": [105.0] * 4, "evaluate@a-light": [30.0] * 4, "table": [2.0]}  # 200 episodes: 4 shards
+    assert pipeline_time.slurm_schedule(jobs, upstreams, cores=64) == pytest.approx(105.0 + 30.0 + 2.0)
+    assert pipeline_time.slurm_schedule(jobs, upstreams, cores=2) == pytest.approx(2 * 105.0 + 2 * 30.0 + 2.0)
+    assert pipeline_time.slurm_schedule({"a": [3.0, 1.0, 1.0, 1.0]}, {}, cores=2) == pytest.approx(3.0)
+    result = pipeline_time.projections(stages, runs, {"evaluate"}, upstreams, measured_cores=2,
+                                       episodes={"evaluate@a-light": 200}, slurm_overhead_s=5.0)
+    assert result["slurm_64_cores"]["wall_s"] == pytest.approx(137.0)
+    assert result["slurm_64_cores"]["jobs"] == 9
+    assert pipeline_time.slurm_job_overhead_s() > 0  # from the committed results/benchmarks/slurm_overhead.json
+
+
 def test_evaluation_stages_are_found_by_their_command(tmp_path):
     (tmp_path / "dvc.yaml").write_text(
         "stages:\n  evaluate:\n    matrix: {m: [a]}\n    cmd: python -m srmpc evaluation.controller=${item.m}\n"
