@@ -165,6 +165,55 @@ def test_bad_warm_start_setting_is_one_line(field, value, message):
     assert str(raised.value) == message
 
 
+@pytest.mark.parametrize("guess", ["rollout", "cv"])
+def test_stall_test_converges_as_without(states, guess):
+    """With the stall test on (``stall_iterations``), every stored state converges to the same tolerance, through the
+    same iterates, to the same plan as without it (it ends only solves that are not converging)."""
+    with_test = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True, stall_iterations=3))
+    without = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True))
+    for i in range(states["ego"].shape[0]):
+        ego, last_input, others, tracking = planner_inputs(states, i)
+        step = OcpStepData(ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking, last_input,
+                           others)
+        result, reference = with_test.solve(step), without.solve(step)
+        assert result.converged and reference.converged, (i, result.status, reference.status)
+        assert result.primal_infeasibility <= with_test.settings.primal_tolerance
+        assert result.step_norms[-1] <= with_test.settings.stationarity_tolerance
+        assert (result.iterations, result.step_lengths) == (reference.iterations, reference.step_lengths), i
+        np.testing.assert_array_equal(result.states, reference.states)
+        np.testing.assert_array_equal(result.inputs, reference.inputs)
+
+
+def test_stall_test_stops_after_k_short_steps(states):
+    """K = 1 with every damped step counted (alpha <= 0.99): the solve stops right after the first damped step."""
+    without = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True))
+    stalling = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True, stall_iterations=1, stall_step_length=0.99))
+    checked = 0
+    for i in range(states["ego"].shape[0]):
+        ego, last_input, others, tracking = planner_inputs(states, i)
+        step = OcpStepData(ego, states["cv_states"][i], states["cv_inputs"][i], tracking, last_input, others)
+        reference = without.solve(step)
+        damped = [k for k, alpha in enumerate(reference.step_lengths) if alpha < 1.0]
+        result = stalling.solve(step)
+        if not damped:
+            assert result.status == reference.status and result.iterations == reference.iterations
+            continue
+        assert result.status == "stalled" and not result.converged
+        assert result.iterations == damped[0] + 1 and result.step_lengths == reference.step_lengths[:damped[0] + 1]
+        checked += 1
+    assert checked, "no stored solve took a damped step"
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("stall_iterations", -1, "stall_iterations=-1: must be an integer >= 0"),
+    ("stall_step_length", 1.0, "stall_step_length=1.0: must be a finite number in (0, 1)"),
+])
+def test_bad_stall_setting_is_one_line(field, value, message):
+    with pytest.raises(ValueError) as raised:
+        NmpcSettings(**{field: value})
+    assert str(raised.value) == message
+
+
 def test_anderson_acceleration_reaches_the_plain_sqp_plan(states, solver):
     """The accelerated iteration (default) converges to the same plan as the plain Gauss-Newton SQP."""
     plain = NmpcSolver(OcpConfig(), NmpcSettings(anderson_depth=0))
