@@ -17,14 +17,19 @@ SQP with our Riccati interior-point QP solver, the table's planner OCP) is solve
   and iterations are the sum of both solves);
 
 and IPOPT (``srmpc.mpc.nmpc.casadi_reference``, exact Hessian) from the same primal point. Timed: the
-NMPC's whole solve (its QPs after the first warm-started, ``NmpcSettings(qp_warm_start=True)``), process
-pinned to one core, numba on one thread, after a warm-up solve.
+NMPC's whole solve (its QPs after the first warm-started, ``NmpcSettings(qp_warm_start=True)``), process pinned
+to one core, numba on one thread, after a warm-up solve.
 
 - Warm- against cold-started QP subproblems: right after each NMPC solve, the same NMPC with every QP started
   cold (``NmpcSettings(qp_warm_start=False)``, the revisions before the warm start) solves it, then the warm-started
   NMPC again, so that both compared solves see the same machine load and warm caches (the timed solve above
   follows IPOPT's solves): converged plans, SQP iterations, interior-point iterations per QP and per solve, and
   time, per guess (``qp_warm_start_vs_cold``).
+- The stall test (``NmpcSettings.stall_iterations`` = ``STALL_ITERATIONS``, off by default): after the cold solve, the
+  warm-started NMPC with the stall test solves it, right before the repeated warm solve without it, both timed
+  with warm caches: converged plans (and whether each is the plan without the test: same status, iterations and
+  objective, hence IPOPT's certificate), statuses, SQP iterations of all solves, mean, median and p99 time, per
+  guess (``stall_test_vs_without``).
 
 - Agreement with IPOPT: objective within ``AGREEMENT`` (relative), first input and trajectory within
   their absolute tolerances.
@@ -72,6 +77,9 @@ the trajectories agree to 1e-7."""
 TARGETS = {"policy_rollout_median_ms": 1.0, "rollout_fewer_median_iterations_than_constant_velocity": True}
 """Issue 30 (benchmark, not test): the NMPC step from the rollout median <= 1 ms on one core; fewer
 median SQP iterations from the rollout than from constant velocity."""
+STALL_ITERATIONS = 3
+"""K of the stall test measured against the solve without it (``NmpcSettings.stall_iterations``; its step length
+``stall_step_length`` at its default 1/16)."""
 MAX_OBSERVED = 6
 """Observation slots; recorded predictions are padded to this many vehicles."""
 STATE_NAMES = ("x [m]", "y [m]", "psi [rad]", "v [m/s]")
@@ -177,12 +185,14 @@ def certify(reference, planner_inputs: tuple, result) -> dict:
 def qp_fields(result) -> dict:
     """A solve's SQP and QP counts and time (``qp_warm_start_vs_cold``)."""
     return {"converged": result.converged, "iterations": result.iterations, "time_s": result.solve_time_s,
-            "qp_iterations": [int(q) for q in result.qp_iterations]}
+            "qp_iterations": [int(q) for q in result.qp_iterations], "status": result.status,
+            "objective": result.objective}
 
 
-def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, cold_solver: NmpcSolver) -> list[dict]:
+def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, cold_solver: NmpcSolver,
+              stall_solver: NmpcSolver) -> list[dict]:
     """Per state and guess: the NMPC's and IPOPT's outcomes and, for a converged plan, its certification; the
-    same NMPC solve with cold-started QPs (module doc)."""
+    same NMPC solve with cold-started QPs and with the stall test (module doc)."""
     records = []
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = state_inputs(states, i)
@@ -194,6 +204,7 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, cold
             step = OcpStepData(ego, guess_states, guess_inputs, tracking, last_input, others)
             result = solver.solve(step)
             cold = cold_solver.solve(step)
+            stalled = stall_solver.solve(step)
             repeated = solver.solve(step)
             start = solver.initial_point(step)
             ipopt = reference.solve(ego, last_input, others, tracking, start.states, start.inputs, start.slacks[:n],
@@ -204,7 +215,7 @@ def solve_all(states: dict[str, np.ndarray], solver: NmpcSolver, reference, cold
                    "ipopt_success": ipopt.success, "ipopt_status": ipopt.status,
                    "ipopt_iterations": ipopt.iterations, "ipopt_time_s": ipopt.solve_time_s,
                    "ipopt_objective": ipopt.objective, **kkt_fields(result),
-                   "qps": qp_fields(repeated), "cold_qps": qp_fields(cold)}
+                   "qps": qp_fields(repeated), "cold_qps": qp_fields(cold), "stall_qps": qp_fields(stalled)}
             row.update(compare(result, ipopt))
             if result.converged:
                 row["certificate"] = certify(reference, (ego, last_input, others, tracking), result)
@@ -276,9 +287,9 @@ def summarize(records: list[dict]) -> dict:
 
 
 def qp_start_comparison(records: list[dict]) -> dict:
-    """Per guess, the NMPC with warm-started QPs (``qp_warm_start=True``, the solver of the other tables; its
-    repeated solve) and with every QP cold, solved back to back (module doc): converged plans, SQP iterations
-    (converged), interior-point iterations per QP (all, and those after the first) and per solve, time."""
+    """Per guess, the NMPC with warm-started QPs (``qp_warm_start=True``, the solver of the other tables; its repeated
+    solve) and with every QP cold, solved back to back (module doc): converged plans, SQP iterations (converged),
+    interior-point iterations per QP (all, and those after the first) and per solve, time."""
     table = {}
     for guess in GUESSES:
         entry = {}
@@ -295,8 +306,43 @@ def qp_start_comparison(records: list[dict]) -> dict:
                 "qp_iterations_per_qp_mean": float(np.mean(per_qp)),
                 "qp_iterations_after_the_first_qp_mean": float(np.mean(later)),
                 "qp_iterations_per_solve_median": float(np.median([sum(row["qp_iterations"]) for row in rows])),
-                "time_median_ms": float(np.median(time_ms)), "time_p99_ms": float(np.percentile(time_ms, 99))}
+                "time_median_ms": float(np.median(time_ms)), "time_p99_ms": float(np.percentile(time_ms, 99)),
+                "time_mean_ms": float(np.mean(time_ms))}
         entry["time_median_ratio_warm_to_cold"] = entry["warm"]["time_median_ms"] / entry["cold"]["time_median_ms"]
+        table[guess] = entry
+    return table
+
+
+def stall_comparison(records: list[dict]) -> dict:
+    """Per guess, the warm-started NMPC without the stall test (its repeated solve) and with it, solved back to back
+    (module doc): converged plans, those equal to the plan without the test and certified by IPOPT, statuses, SQP
+    iterations (converged and all), time (mean, median, p99)."""
+    table = {"stall_iterations": STALL_ITERATIONS}
+    for guess in GUESSES:
+        entry = {}
+        for key, name in (("qps", "without"), ("stall_qps", "with_stall_test")):
+            rows = [r[guess][key] for r in records]
+            converged = np.array([row["converged"] for row in rows])
+            iterations = np.array([row["iterations"] for row in rows], dtype=float)
+            time_ms = np.array([row["time_s"] for row in rows]) * 1e3
+            entry[name] = {
+                "converged": int(converged.sum()), "statuses": dict(Counter(row["status"] for row in rows)),
+                "iterations_median": float(np.median(iterations[converged])),
+                "iterations_mean": float(np.mean(iterations[converged])),
+                "iterations_mean_all_solves": float(np.mean(iterations)),
+                "iterations_max_all_solves": int(iterations.max()),
+                "qp_iterations_per_solve_mean": float(np.mean([sum(row["qp_iterations"]) for row in rows])),
+                "time_mean_ms": float(np.mean(time_ms)), "time_median_ms": float(np.median(time_ms)),
+                "time_p99_ms": float(np.percentile(time_ms, 99))}
+        same = [r[guess]["stall_qps"]["converged"] and all(
+            r[guess]["stall_qps"][k] == r[guess]["qps"][k] for k in ("status", "iterations", "objective"))
+            for r in records]
+        certified = [r[guess]["converged"] and r[guess]["certificate"]["certified"]
+                     and r[guess]["stall_qps"]["converged"] for r in records]
+        entry["with_stall_test"]["converged_same_plan_as_without"] = int(sum(same))
+        entry["with_stall_test"]["converged_and_certified_by_ipopt"] = int(sum(certified))
+        entry["time_mean_ratio_with_to_without"] = (entry["with_stall_test"]["time_mean_ms"]
+                                                    / entry["without"]["time_mean_ms"])
         table[guess] = entry
     return table
 
@@ -498,11 +544,12 @@ def main() -> None:
     ocp, _ = planner_ocp(config)
     solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=True))  # warm-started QPs (module doc)
     cold_solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=False))
+    stall_solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=True, stall_iterations=STALL_ITERATIONS))
     reference = IpoptReference(ocp)
     ego, last_input, others, tracking = state_inputs(states, 0)
-    for nmpc in (solver, cold_solver):  # compile
+    for nmpc in (solver, cold_solver, stall_solver):  # compile
         nmpc.solve(OcpStepData(ego, *guess_of(states, 0, "policy_rollout"), tracking, last_input, others))
-    records = solve_all(states, solver, reference, cold_solver)
+    records = solve_all(states, solver, reference, cold_solver, stall_solver)
     table = summarize(records)
     rollout, constant = table["policy_rollout"], table["constant_velocity"]
     measured = {"policy_rollout_median_ms": rollout["time_median_ms"],
@@ -515,6 +562,7 @@ def main() -> None:
         "kkt_certification_by_ipopt": certification(records),
         "kkt_residual": kkt_summary(records),
         "qp_warm_start_vs_cold": qp_start_comparison(records),
+        "stall_test_vs_without": stall_comparison(records),
         "targets": {"policy_rollout_median_ms": {"limit": TARGETS["policy_rollout_median_ms"],
                                                  "measured": measured["policy_rollout_median_ms"],
                                                  "ratio_to_target": measured["policy_rollout_median_ms"]
@@ -541,7 +589,8 @@ def main() -> None:
     print(json.dumps({"per_guess": table, "lowest_optimum": result["lowest_optimum"],
                       "agreement": result["agreement_with_ipopt"]["all_guesses"],
                       "certification": result["kkt_certification_by_ipopt"]["all_guesses"],
-                      "kkt_residual": result["kkt_residual"]["error"], "targets": result["targets"]}, indent=1))
+                      "kkt_residual": result["kkt_residual"]["error"], "targets": result["targets"],
+                      "stall_test_vs_without": result["stall_test_vs_without"]}, indent=1))
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ safety region entered), with the SRMPC policy's rollout and the constant-velocit
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -160,6 +161,51 @@ def test_warm_started_subproblems_converge_as_the_cold(states, guess):
     ("qp_warm_start_iterations", 0, "qp_warm_start_iterations=0: must be an integer in [1, 50]"),
 ])
 def test_bad_warm_start_setting_is_one_line(field, value, message):
+    with pytest.raises(ValueError) as raised:
+        NmpcSettings(**{field: value})
+    assert str(raised.value) == message
+
+
+@pytest.mark.parametrize("guess", ["rollout", "cv"])
+def test_stall_test_converges_as_without(states, guess):
+    """With the stall test on (``stall_iterations``), every stored state converges to the same tolerance, through the
+    same iterates, to the same plan as without it (it ends only solves that are not converging)."""
+    with_test = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True, stall_iterations=3))
+    without = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True))
+    for i in range(states["ego"].shape[0]):
+        ego, last_input, others, tracking = planner_inputs(states, i)
+        step = OcpStepData(ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking, last_input,
+                           others)
+        result, reference = with_test.solve(step), without.solve(step)
+        assert result.converged and reference.converged, (i, result.status, reference.status)
+        assert result.primal_infeasibility <= with_test.settings.primal_tolerance
+        assert result.step_norms[-1] <= with_test.settings.stationarity_tolerance
+        assert (result.iterations, result.step_lengths) == (reference.iterations, reference.step_lengths), i
+        np.testing.assert_array_equal(result.states, reference.states)
+        np.testing.assert_array_equal(result.inputs, reference.inputs)
+
+
+def test_stall_test_stops_a_crawling_solve(states):
+    """An over-strict Armijo fraction (0.99) makes the SQP crawl with accepted steps alpha <= 1/16 to
+    ``max_iterations``, as the benchmark's unconverged solves do; with K = 3 the solve stops after 3 such steps,
+    status ``stalled``, through the same iterates."""
+    crawling = NmpcSettings(qp_warm_start=True, armijo=0.99, max_iterations=8)
+    without = NmpcSolver(OcpConfig(), crawling)
+    stalling = NmpcSolver(OcpConfig(), dataclasses.replace(crawling, stall_iterations=3))
+    for i in (0, 2):
+        ego, last_input, others, tracking = planner_inputs(states, i)
+        step = OcpStepData(ego, states["cv_states"][i], states["cv_inputs"][i], tracking, last_input, others)
+        reference, result = without.solve(step), stalling.solve(step)
+        assert reference.status == "max_iterations" and max(reference.step_lengths) <= 1 / 16, reference.step_lengths
+        assert result.status == "stalled" and not result.converged and result.iterations == 3
+        assert result.step_lengths == reference.step_lengths[:3] and result.step_norms == reference.step_norms[:3]
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("stall_iterations", -1, "stall_iterations=-1: must be an integer >= 0"),
+    ("stall_step_length", 1.0, "stall_step_length=1.0: must be a finite number in (0, 1)"),
+])
+def test_bad_stall_setting_is_one_line(field, value, message):
     with pytest.raises(ValueError) as raised:
         NmpcSettings(**{field: value})
     assert str(raised.value) == message
