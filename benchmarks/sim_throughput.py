@@ -12,7 +12,13 @@ Both simulators get the same kind of actions (no steering, uniform acceleration 
 so most episodes run on) and auto-reset ended episodes. Timings are wall-clock medians over
 repeats; the machine's load average is recorded with them.
 
-    python benchmarks/sim_throughput.py [--quick] [--output PATH]
+With ``--previous PATH`` (a checkout of an earlier commit, e.g. ``git worktree add /tmp/main-ref main``)
+it also writes ``previous_commit``: this checkout against that one in the same run, on one thread,
+``--rounds`` alternating rounds of one worker process per checkout (previous first), each timing the
+twin's steps/s at B = 1 and B = 1024 and the 25-step rollout from one scene [us]; reported are the
+medians over rounds of each worker's median and the speedups.
+
+    taskset -c 1 python benchmarks/sim_throughput.py [--quick] [--output PATH] [--previous PATH [--rounds 5]]
 """
 
 from __future__ import annotations
@@ -22,7 +28,9 @@ import datetime
 import json
 import os
 import platform
+import statistics
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -97,6 +105,60 @@ def rollout_ms(params: ScenarioParameters, scenes: int, policy: MlpPolicy, repea
     return float(np.median(times))
 
 
+COMPARED_BATCH_SIZES = (1, 1024)
+"""B of the twin's steps/s in the ``--previous`` comparison."""
+
+
+def compared_worker(quick: bool) -> dict:
+    """One round of the ``--previous`` comparison for this process's ``srmpc`` (one thread)."""
+    numba.set_num_threads(1)
+    params = ScenarioParameters()
+    min_steps = 2_000 if quick else 30_000
+    steps = {str(b): twin_steps_per_s(params, b, 1, min_steps, 3) for b in COMPARED_BATCH_SIZES}
+    policy = MlpPolicy.random(seed=0, hidden=(64, 64), squash=True)
+    return {"twin_steps_per_s_1thread": steps,
+            "rollout25_us_1thread_at_1": rollout_ms(params, 1, policy, 3 if quick else 9) * 1e3}
+
+
+def compare_with_previous(previous: Path, rounds: int, quick: bool) -> dict:
+    """This checkout against ``previous``: alternating worker processes, medians over rounds."""
+    here = Path(__file__).resolve()
+    checkouts = {"previous": previous.resolve(), "current": here.parents[1]}
+    runs: dict[str, list[dict]] = {"previous": [], "current": []}
+    for _ in range(rounds):
+        for which, checkout in checkouts.items():
+            command = [sys.executable, str(here), "--worker"] + (["--quick"] if quick else [])
+            output = subprocess.run(command, cwd=checkout, env=dict(os.environ, PYTHONPATH=str(checkout)),
+                                    check=True, capture_output=True, text=True)
+            runs[which].append(json.loads(output.stdout.strip().splitlines()[-1]))
+            print(which, runs[which][-1], flush=True)
+    medians = {which: {"twin_steps_per_s_1thread": {str(b): round(statistics.median(
+                           r["twin_steps_per_s_1thread"][str(b)] for r in rs)) for b in COMPARED_BATCH_SIZES},
+                       "rollout25_us_1thread_at_1": round(statistics.median(
+                           r["rollout25_us_1thread_at_1"] for r in rs), 1)}
+               for which, rs in runs.items()}
+    current, before = medians["current"], medians["previous"]
+    commit = subprocess.run(["git", "-C", str(previous), "rev-parse", "HEAD"], capture_output=True, text=True,
+                            check=True).stdout.strip()
+    return {
+        "commit": commit,
+        "rounds": rounds,
+        "statistic": "median over rounds of each worker's median; workers alternate, previous first",
+        "previous": before,
+        "current": current,
+        "speedup": {
+            "rollout25_us_1thread_at_1": round(before["rollout25_us_1thread_at_1"]
+                                               / current["rollout25_us_1thread_at_1"], 3),
+            **{f"steps_per_s_at_{b}": round(current["twin_steps_per_s_1thread"][str(b)]
+                                            / before["twin_steps_per_s_1thread"][str(b)], 3)
+               for b in COMPARED_BATCH_SIZES},
+        },
+        "note": "speedup: previous time / current time (rollout), current / previous steps/s (twin); "
+                "> 1: this checkout is faster",
+        "rounds_raw": runs,
+    }
+
+
 def _git_commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
@@ -108,7 +170,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="few steps (a smoke run, not for the record)")
     parser.add_argument("--output", type=Path, default=Path("results/benchmarks/sim_throughput.json"))
+    parser.add_argument("--previous", type=Path, help="a checkout of an earlier commit to compare with")
+    parser.add_argument("--rounds", type=int, default=5, help="alternating rounds of the --previous comparison")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.worker:
+        print(json.dumps(compared_worker(args.quick)))
+        return
     params = ScenarioParameters()
     highway_min_steps = 60 if args.quick else 1024
     twin_min_steps = 2_000 if args.quick else 100_000
@@ -136,6 +204,7 @@ def main() -> None:
         numba.set_num_threads(all_threads)
         print(f"rollout H={ROLLOUT_HORIZON} B={scenes}: {rollouts[scenes]:.3f} ms "
               f"({rollouts_1thread[scenes]:.3f} ms on 1 thread)", flush=True)
+    comparison = compare_with_previous(args.previous, args.rounds, args.quick) if args.previous else None
     load_after = os.getloadavg()
 
     result = {
@@ -170,6 +239,8 @@ def main() -> None:
         "git_commit": _git_commit(),
         "date_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
     }
+    if comparison is not None:
+        result["previous_commit"] = comparison
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {args.output}")
