@@ -15,9 +15,8 @@ repeats; the machine's load average is recorded with them.
 With ``--previous PATH`` (a checkout of an earlier commit, e.g. ``git worktree add /tmp/main-ref main``)
 it also writes ``previous_commit``: this checkout against that one in the same run, on one thread,
 ``--rounds`` alternating rounds of one worker process per checkout (previous first), each timing the
-twin's steps/s at B = 1 and B = 1024 and the 25-step rollout from one scene [us] (the first round's also
-the per-kernel profile, :func:`kernel_profile_ns`); reported are the medians over rounds of each worker's
-median and the speedups.
+twin's steps/s at B = 1 and B = 1024, the 25-step rollout from one scene [us] and the per-kernel profile
+(:func:`kernel_profile_ns`); reported are the medians over rounds (of each worker's median) and the speedups.
 
     taskset -c 1 python benchmarks/sim_throughput.py [--quick] [--output PATH] [--previous PATH [--rounds 5]]
 """
@@ -217,19 +216,17 @@ def kernel_profile_ns() -> dict[str, float]:
     return {name: round(value, 1) for name, value in per_call.items()}
 
 
-def compared_worker(quick: bool, profile: bool) -> dict:
-    """One round of the ``--previous`` comparison for this process's ``srmpc`` (one thread); with
-    ``profile``, also :func:`kernel_profile_ns`."""
+def compared_worker(quick: bool) -> dict:
+    """One round of the ``--previous`` comparison for this process's ``srmpc`` (one thread), with
+    :func:`kernel_profile_ns`."""
     numba.set_num_threads(1)
     params = ScenarioParameters()
     min_steps = 2_000 if quick else 30_000
     steps = {str(b): twin_steps_per_s(params, b, 1, min_steps, 3) for b in COMPARED_BATCH_SIZES}
     policy = MlpPolicy.random(seed=0, hidden=(64, 64), squash=True)
-    result = {"twin_steps_per_s_1thread": steps,
-              "rollout25_us_1thread_at_1": rollout_ms(params, 1, policy, 3 if quick else 9) * 1e3}
-    if profile:
-        result["kernel_ns"] = kernel_profile_ns()
-    return result
+    return {"twin_steps_per_s_1thread": steps,
+            "rollout25_us_1thread_at_1": rollout_ms(params, 1, policy, 3 if quick else 9) * 1e3,
+            "kernel_ns": kernel_profile_ns()}
 
 
 def compare_with_previous(previous: Path, rounds: int, quick: bool) -> dict:
@@ -237,10 +234,9 @@ def compare_with_previous(previous: Path, rounds: int, quick: bool) -> dict:
     here = Path(__file__).resolve()
     checkouts = {"previous": previous.resolve(), "current": here.parents[1]}
     runs: dict[str, list[dict]] = {"previous": [], "current": []}
-    for round_index in range(rounds):
+    for _ in range(rounds):
         for which, checkout in checkouts.items():
-            command = ([sys.executable, str(here), "--worker"] + (["--quick"] if quick else [])
-                       + (["--profile"] if round_index == 0 else []))
+            command = [sys.executable, str(here), "--worker"] + (["--quick"] if quick else [])
             output = subprocess.run(command, cwd=checkout, env=dict(os.environ, PYTHONPATH=str(checkout)),
                                     check=True, capture_output=True, text=True)
             runs[which].append(json.loads(output.stdout.strip().splitlines()[-1]))
@@ -259,8 +255,8 @@ def compare_with_previous(previous: Path, rounds: int, quick: bool) -> dict:
         "statistic": "median over rounds of each worker's median; workers alternate, previous first",
         "previous": before,
         "current": current,
-        "kernel_ns_per_call": {"previous": runs["previous"][0]["kernel_ns"], "current": runs["current"][0]["kernel_ns"],
-                               "note": "first round's workers; see kernel_profile_ns"},
+        "kernel_ns_per_call": {which: {name: round(statistics.median(r["kernel_ns"][name] for r in rs), 1)
+                                       for name in rs[0]["kernel_ns"]} for which, rs in runs.items()},
         "speedup": {
             "rollout25_us_1thread_at_1": round(before["rollout25_us_1thread_at_1"]
                                                / current["rollout25_us_1thread_at_1"], 3),
@@ -288,10 +284,9 @@ def main() -> None:
     parser.add_argument("--previous", type=Path, help="a checkout of an earlier commit to compare with")
     parser.add_argument("--rounds", type=int, default=5, help="alternating rounds of the --previous comparison")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--profile", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        print(json.dumps(compared_worker(args.quick, args.profile)))
+        print(json.dumps(compared_worker(args.quick)))
         return
     params = ScenarioParameters()
     highway_min_steps = 60 if args.quick else 1024
