@@ -5,7 +5,7 @@
 Scenes: twin scenes 30 control steps after ``reset(seed)`` (seeds 0..scenes-1, lane keeping with a random
 acceleration), per traffic level. Each repetition times, interleaved on the same scene (B = 1, 25 steps, the
 random 64x64 policy): ``rollout`` on the full scene; ``local_scene`` alone; ``local_scene`` + ``rollout``; and
-the fused kernel alone (``_rollout_mlp_serial`` on an already copied scene, as SRMPC's compiled step calls it)
+the fused kernel alone (``_rollout_mlp_serial``: the scene's copy and the outputs are made inside it)
 on the full and on the reduced scene. Printed: the median over scenes of each scene's median [us].
 """
 
@@ -19,7 +19,7 @@ import numpy as np
 from srmpc.config.compose import compose_config, to_objects
 from srmpc.sim.local_rollout import LEADER_DEPTH, local_scene
 from srmpc.sim.mlp import MlpPolicy
-from srmpc.sim.rollout import _allocate, _rollout_mlp_serial, rollout
+from srmpc.sim.rollout import _rollout_mlp_serial, rollout
 from srmpc.sim.single_env import TwinScenarioEnv
 
 HORIZON = 25
@@ -40,12 +40,10 @@ def scenes_of(traffic: str, count: int):
 
 
 def kernel_us(state, constants, policy) -> float:
-    work = state.copy()
-    out = _allocate(1, HORIZON, work.vehicle_count, False)
+    arrays = state.arrays()
     (w0, w1, w2), (b0, b1, b2), low, high, squash = policy.packed
     start = time.perf_counter()
-    _rollout_mlp_serial(work.arrays(), constants, HORIZON, w0, b0, w1, b1, w2, b2, low, high, squash, out.ego,
-                        out.actions, out.cost, out.reward_prime, out.terminated, np.empty((1, 1, 1, 4)), False)
+    _rollout_mlp_serial(arrays, constants, HORIZON, w0, b0, w1, b1, w2, b2, low, high, squash, False)
     return (time.perf_counter() - start) * 1e6
 
 

@@ -12,7 +12,13 @@ Both simulators get the same kind of actions (no steering, uniform acceleration 
 so most episodes run on) and auto-reset ended episodes. Timings are wall-clock medians over
 repeats; the machine's load average is recorded with them.
 
-    python benchmarks/sim_throughput.py [--quick] [--output PATH]
+With ``--previous PATH`` (a checkout of an earlier commit, e.g. ``git worktree add /tmp/main-ref main``)
+it also writes ``previous_commit``: this checkout against that one in the same run, on one thread,
+``--rounds`` alternating rounds of one worker process per checkout (previous first), each timing the
+twin's steps/s at B = 1 and B = 1024, the 25-step rollout from one scene [us] and the per-kernel profile
+(:func:`kernel_profile_ns`); reported are the medians over rounds (of each worker's median) and the speedups.
+
+    taskset -c 1 python benchmarks/sim_throughput.py [--quick] [--output PATH] [--previous PATH [--rounds 5]]
 """
 
 from __future__ import annotations
@@ -22,7 +28,9 @@ import datetime
 import json
 import os
 import platform
+import statistics
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -97,6 +105,171 @@ def rollout_ms(params: ScenarioParameters, scenes: int, policy: MlpPolicy, repea
     return float(np.median(times))
 
 
+COMPARED_BATCH_SIZES = (1, 1024)
+"""B of the twin's steps/s in the ``--previous`` comparison."""
+PROFILE_SCENES = 64
+"""Scenes (after 15 control steps of the 2x64 policy) on which each kernel of the profile is timed."""
+PROFILE_REPEATS = 2000
+"""Calls of each kernel per scene in the profile."""
+
+
+def kernel_profile_ns() -> dict[str, float]:
+    """Nanoseconds per call and scene of the kernels a control step is made of, each called
+    ``PROFILE_REPEATS`` times in a compiled loop on ``PROFILE_SCENES`` real scenes (one thread).
+
+    A control step (``engine.simulate_in``) runs ``sort_by_x`` 4 times and ``all_leaders``, the IDM
+    vehicles' act, ``integrate`` + ``apply_impacts`` and ``handle_collisions`` 3 times each (one per
+    sub-step); ``measure`` (observation and phi) and, in a rollout, ``mlp_action`` once. The IDM act
+    is inlined in ``simulate_in``: ``idm_act_and_rest`` is ``simulate_in`` minus the timed kernels.
+    ``integrate`` is timed with a restore of the scene before each call (``restore`` alone subtracted).
+    Uses only kernels and signatures that both compared checkouts have.
+    """
+    from numba import njit
+
+    from srmpc.sim.collision import handle_collisions
+    from srmpc.sim.engine import measure, road_ranks, simulate_in, sort_by_x, workspace
+    from srmpc.sim.idm import all_leaders
+    from srmpc.sim.mlp import mlp_action
+    from srmpc.sim.vehicle import apply_impacts, integrate
+
+    @njit
+    def prepare(s, w, b):
+        road_ranks(s.ego_rank[b], s.vehicles.shape[1], w.rank)
+        sort_by_x(s.vehicles[b], s.order[b], w.rank, w.position)
+
+    @njit
+    def time_kernel(kernel, s, c, w, repeats, observation, slot_vehicle, raw):
+        n = s.vehicles.shape[1]
+        for b in range(s.vehicles.shape[0]):
+            prepare(s, w, b)
+            vehicles, lane, control = s.vehicles[b].copy(), s.lane[b].copy(), s.control[b].copy()
+            for _ in range(repeats):
+                if kernel == 0:
+                    sort_by_x(s.vehicles[b], s.order[b], w.rank, w.position)
+                elif kernel == 1:
+                    all_leaders(s.vehicles[b], s.order[b], w.position, s.lane[b], s.target_lane[b], c.lane_count,
+                                c.lane_width, c.road_length, w.lane_leader, w.target_leader, w.last_on_lane)
+                elif kernel == 2 or kernel == 3:
+                    s.vehicles[b] = vehicles
+                    s.lane[b] = lane
+                    s.control[b] = control
+                    if kernel == 3:
+                        for k in range(n):
+                            integrate(s.vehicles[b], s.control[b], s.crashed[b], s.lane[b], k, c.dt, c.lane_count,
+                                      c.lane_width, c.road_length)
+                        apply_impacts(s.vehicles[b], s.crashed[b], s.impact[b], s.has_impact[b], s.lane[b],
+                                      c.lane_count, c.lane_width, c.road_length)
+                elif kernel == 4:
+                    handle_collisions(s.vehicles[b], s.crashed[b], s.impact[b], s.has_impact[b], s.order[b], w.rank,
+                                      c.dt, w.pair_keys, w.poly_a, w.poly_b, w.pair_first, w.pair_second)
+                else:
+                    measure(s, c, b, observation, slot_vehicle, raw)
+            s.vehicles[b] = vehicles
+            s.lane[b] = lane
+            s.control[b] = control
+
+    @njit
+    def time_mlp(observation, w0, b0, w1, b1, w2, b2, low, high, squash, repeats):
+        h0, h1, z = np.empty(w0.shape[1]), np.empty(w1.shape[1]), np.empty(w2.shape[1])
+        total = 0.0
+        for _ in range(repeats):
+            total += mlp_action(observation, w0, b0, w1, b1, w2, b2, low, high, squash, h0, h1, z)[0]
+        return total
+
+    @njit
+    def time_steps(s, c, w, steps):
+        for b in range(s.vehicles.shape[0]):
+            for _ in range(steps):
+                simulate_in(s, c, b, 0.0, 0.0, w)
+
+    params = ScenarioParameters()
+    policy = MlpPolicy.random(seed=0, hidden=(64, 64), squash=True)
+    sim = TwinSimulator(params, PROFILE_SCENES, seed=3, threads=1)
+    for _ in range(15):
+        sim.step(policy(sim.observation), auto_reset=True)
+    constants, work = sim.constants, workspace(sim.state.vehicle_count, sim.constants.lane_count)
+    observation, slot_vehicle, raw = np.empty(30, dtype=np.float32), np.empty(6, dtype=np.int64), np.empty(30)
+    names = ("sort_by_x", "all_leaders", "restore", "integrate_and_impacts", "handle_collisions", "measure")
+    per_call = {}
+    for kernel, name in enumerate(names):
+        snapshot = sim.snapshot()
+        time_kernel(kernel, sim.state.arrays(), constants, work, 1, observation, slot_vehicle, raw)
+        start = time.perf_counter()
+        time_kernel(kernel, sim.state.arrays(), constants, work, PROFILE_REPEATS, observation, slot_vehicle, raw)
+        per_call[name] = (time.perf_counter() - start) / PROFILE_REPEATS / PROFILE_SCENES * 1e9
+        sim.restore(snapshot)
+    per_call["integrate_and_impacts"] -= per_call.pop("restore")
+    (w0, w1, w2), (b0, b1, b2), low, high, squash = policy.packed
+    time_mlp(sim.observation[0], w0, b0, w1, b1, w2, b2, low, high, squash, 1)
+    start = time.perf_counter()
+    time_mlp(sim.observation[0], w0, b0, w1, b1, w2, b2, low, high, squash, 50 * PROFILE_REPEATS)
+    per_call["mlp_action"] = (time.perf_counter() - start) / (50 * PROFILE_REPEATS) * 1e9
+    snapshot = sim.snapshot()
+    time_steps(sim.state.arrays(), constants, work, 1)
+    sim.restore(snapshot)
+    start = time.perf_counter()
+    time_steps(sim.state.arrays(), constants, work, 20)
+    per_call["simulate_in"] = (time.perf_counter() - start) / 20 / PROFILE_SCENES * 1e9
+    per_call["idm_act_and_rest"] = per_call["simulate_in"] - (
+        4 * per_call["sort_by_x"] + 3 * (per_call["all_leaders"] + per_call["integrate_and_impacts"]
+                                         + per_call["handle_collisions"]))
+    return {name: round(value, 1) for name, value in per_call.items()}
+
+
+def compared_worker(quick: bool) -> dict:
+    """One round of the ``--previous`` comparison for this process's ``srmpc`` (one thread), with
+    :func:`kernel_profile_ns`."""
+    numba.set_num_threads(1)
+    params = ScenarioParameters()
+    min_steps = 2_000 if quick else 30_000
+    steps = {str(b): twin_steps_per_s(params, b, 1, min_steps, 3) for b in COMPARED_BATCH_SIZES}
+    policy = MlpPolicy.random(seed=0, hidden=(64, 64), squash=True)
+    return {"twin_steps_per_s_1thread": steps,
+            "rollout25_us_1thread_at_1": rollout_ms(params, 1, policy, 3 if quick else 9) * 1e3,
+            "kernel_ns": kernel_profile_ns()}
+
+
+def compare_with_previous(previous: Path, rounds: int, quick: bool) -> dict:
+    """This checkout against ``previous``: alternating worker processes, medians over rounds."""
+    here = Path(__file__).resolve()
+    checkouts = {"previous": previous.resolve(), "current": here.parents[1]}
+    runs: dict[str, list[dict]] = {"previous": [], "current": []}
+    for _ in range(rounds):
+        for which, checkout in checkouts.items():
+            command = [sys.executable, str(here), "--worker"] + (["--quick"] if quick else [])
+            output = subprocess.run(command, cwd=checkout, env=dict(os.environ, PYTHONPATH=str(checkout)),
+                                    check=True, capture_output=True, text=True)
+            runs[which].append(json.loads(output.stdout.strip().splitlines()[-1]))
+            print(which, runs[which][-1], flush=True)
+    medians = {which: {"twin_steps_per_s_1thread": {str(b): round(statistics.median(
+                           r["twin_steps_per_s_1thread"][str(b)] for r in rs)) for b in COMPARED_BATCH_SIZES},
+                       "rollout25_us_1thread_at_1": round(statistics.median(
+                           r["rollout25_us_1thread_at_1"] for r in rs), 1)}
+               for which, rs in runs.items()}
+    current, before = medians["current"], medians["previous"]
+    commit = subprocess.run(["git", "-C", str(previous), "rev-parse", "HEAD"], capture_output=True, text=True,
+                            check=True).stdout.strip()
+    return {
+        "commit": commit,
+        "rounds": rounds,
+        "statistic": "median over rounds of each worker's median; workers alternate, previous first",
+        "previous": before,
+        "current": current,
+        "kernel_ns_per_call": {which: {name: round(statistics.median(r["kernel_ns"][name] for r in rs), 1)
+                                       for name in rs[0]["kernel_ns"]} for which, rs in runs.items()},
+        "speedup": {
+            "rollout25_us_1thread_at_1": round(before["rollout25_us_1thread_at_1"]
+                                               / current["rollout25_us_1thread_at_1"], 3),
+            **{f"steps_per_s_at_{b}": round(current["twin_steps_per_s_1thread"][str(b)]
+                                            / before["twin_steps_per_s_1thread"][str(b)], 3)
+               for b in COMPARED_BATCH_SIZES},
+        },
+        "note": "speedup: previous time / current time (rollout), current / previous steps/s (twin); "
+                "> 1: this checkout is faster",
+        "rounds_raw": runs,
+    }
+
+
 def _git_commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
@@ -108,7 +281,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="few steps (a smoke run, not for the record)")
     parser.add_argument("--output", type=Path, default=Path("results/benchmarks/sim_throughput.json"))
+    parser.add_argument("--previous", type=Path, help="a checkout of an earlier commit to compare with")
+    parser.add_argument("--rounds", type=int, default=5, help="alternating rounds of the --previous comparison")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.worker:
+        print(json.dumps(compared_worker(args.quick)))
+        return
     params = ScenarioParameters()
     highway_min_steps = 60 if args.quick else 1024
     twin_min_steps = 2_000 if args.quick else 100_000
@@ -136,6 +315,7 @@ def main() -> None:
         numba.set_num_threads(all_threads)
         print(f"rollout H={ROLLOUT_HORIZON} B={scenes}: {rollouts[scenes]:.3f} ms "
               f"({rollouts_1thread[scenes]:.3f} ms on 1 thread)", flush=True)
+    comparison = compare_with_previous(args.previous, args.rounds, args.quick) if args.previous else None
     load_after = os.getloadavg()
 
     result = {
@@ -170,6 +350,8 @@ def main() -> None:
         "git_commit": _git_commit(),
         "date_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
     }
+    if comparison is not None:
+        result["previous_commit"] = comparison
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {args.output}")

@@ -58,3 +58,28 @@ def test_ego_features_and_velocity_components(env):
 @pytest.mark.parametrize(("y", "lane"), [(-1.9, 0), (1.99, 0), (2.01, 1), (5.9, 1), (6.01, 2), (11.0, 2)])
 def test_closest_lane(y, lane):
     assert closest_lane(y) == lane
+
+
+def test_observed_vehicles_are_the_nearest_per_slot_as_a_scan_finds_them():
+    """``find_observed_vehicles`` against a plain scan that keeps each slot's best |dx| (strictly smaller
+    wins, so the first of equal |dx| stays), on random scenes with repeated |dx|, vehicles out of range
+    and a NaN position (never observed)."""
+    from srmpc.scenario.observation import SLOT_COUNT, find_observed_vehicles
+
+    rng = np.random.default_rng(0)
+    slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
+    for _ in range(300):
+        ego = np.array([rng.uniform(0, 50), rng.uniform(-1, 9), 0.0, 25.0])
+        others = np.column_stack([ego[0] + rng.choice([-120, -30, -10, -5, 5, 10, 30, 120], 12).astype(float),
+                                  rng.choice([0.0, 4.0, 8.0], 12), np.zeros(12), np.full(12, 20.0)])
+        others[rng.integers(12), 0] = np.nan
+        best, expected = np.full(SLOT_COUNT, np.inf), np.full(SLOT_COUNT, -1)
+        for j, (x, y, _, _) in enumerate(others):
+            dx = x - ego[0]
+            if abs(dx) > 100.0:
+                continue
+            slot_index = 2 * closest_lane(y) + (0 if dx > 0.0 else 1)
+            if abs(dx) < best[slot_index]:
+                best[slot_index], expected[slot_index] = abs(dx), j
+        find_observed_vehicles(ego, others, 100.0, slot_vehicle)
+        np.testing.assert_array_equal(slot_vehicle, expected)

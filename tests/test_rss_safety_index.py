@@ -149,6 +149,34 @@ def test_paper_kind_is_the_papers_index_bit_for_bit():
                                   si.k_s, AGGRESSIVE.as_tuple()) == expected
 
 
+def test_rss_kind_is_composed_of_the_pair_kernels_bit_for_bit():
+    """With kind rss, phi equals the edge barriers and, per observed vehicle, the barrier at sigma + its
+    ``rss_safe_distance``, composed here from the public kernels (each recomputes the velocities that
+    ``scene_safety_index`` computes once per vehicle): the same operations, so the same bits."""
+    from srmpc.scenario.observation import closest_lane
+    from srmpc.scenario.road import LEFT_ROAD_EDGE, RIGHT_ROAD_EDGE
+    from srmpc.scenario.safety_index import barrier, vehicle_gap_and_rate
+
+    rng = np.random.default_rng(2)
+    for rss in (AGGRESSIVE, AD_RSS_LIB):
+        for _ in range(100):
+            ego = np.array([0.0, rng.choice([0.0, 4.0, 8.0]) + rng.normal(0, 0.5), rng.normal(0, 0.05),
+                            rng.uniform(15, 30)])
+            others = np.column_stack([rng.uniform(-60, 60, 8), rng.choice([0.0, 4.0, 8.0], 8) + rng.normal(0, 1, 8),
+                                      rng.normal(0, 0.05, 8) * rng.integers(0, 2, 8), rng.uniform(18, 26, 8)])
+            _, slots = observe(ego, others, 100.0)
+            vy = ego[3] * np.sin(ego[2])
+            edge = SI.sigma_m + SI.edge_d_min_m
+            expected = max(barrier(max(RIGHT_ROAD_EDGE - ego[1], 0.0), -vy, edge, SI.n, SI.k_s),
+                           barrier(max(ego[1] - LEFT_ROAD_EDGE, 0.0), vy, edge, SI.n, SI.k_s))
+            for j in slots[slots >= 0]:
+                same_lane = closest_lane(others[j, 1]) == closest_lane(ego[1])
+                gap, rate = vehicle_gap_and_rate(ego, others[j], same_lane)
+                safe = rss_safe_distance(ego, others[j], same_lane, rss.as_tuple())
+                expected = max(expected, barrier(gap, rate, SI.sigma_m + safe, SI.n, SI.k_s))
+            assert rss_phi(ego, others, rss) == expected
+
+
 def test_config_selects_the_index_and_records_rss_only_when_selected():
     paper = compose_config([])
     assert "rss" not in recorded_yaml(paper) and "kind" not in recorded_yaml(paper)

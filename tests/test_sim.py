@@ -124,6 +124,50 @@ def test_rollout_equals_stepping_and_leaves_the_state_alone():
     np.testing.assert_allclose(generic.actions, predicted.actions, atol=1e-9)
 
 
+def test_parallel_rollout_equals_serial_and_leaves_the_state_alone():
+    """The fused kernel over threads (shared work state, one scene per iteration) and on one thread give the
+    same bits, and neither writes to the state it starts from."""
+    policy = MlpPolicy.random(seed=5, squash=True)
+    sim = TwinSimulator(PARAMS, 6, seed=8)
+    for _ in range(3):
+        sim.step(policy(sim.observation))
+    before = sim.snapshot()
+    serial = rollout(sim.state, sim.constants, policy, 12, record_others=True, parallel=False)
+    threaded = rollout(sim.state, sim.constants, policy, 12, record_others=True, parallel=True)
+    for name in ("ego", "actions", "cost", "reward_prime", "terminated", "others"):
+        np.testing.assert_array_equal(getattr(threaded, name), getattr(serial, name))
+    for name, array in before.arrays()._asdict().items():
+        np.testing.assert_array_equal(getattr(sim.state, name), array)
+
+
+def test_all_leaders_equals_the_scan_of_each_vehicle():
+    """The one-sweep leader search against ``leader``'s scan per vehicle and lane, on stepped scenes and on
+    the same scenes with an exact x tie (where the sweep hands over to the scan)."""
+    from srmpc.sim.engine import road_ranks, sort_by_x, workspace
+    from srmpc.sim.idm import all_leaders, leader
+
+    sim = TwinSimulator(PARAMS, 8, seed=11)
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        sim.step(_actions(rng, 8, steering_scale=0.05))
+    c, n = sim.constants, sim.state.vehicle_count
+    w = workspace(n, c.lane_count)
+    for tie in (False, True):
+        for b in range(8):
+            vehicles, lane, target_lane = sim.state.vehicles[b].copy(), sim.state.lane[b], sim.state.target_lane[b]
+            if tie:
+                vehicles[3, 0] = vehicles[17, 0]
+            order = np.argsort(vehicles[:, 0], kind="stable")
+            road_ranks(sim.state.ego_rank[b], n, w.rank)
+            sort_by_x(vehicles, order, w.rank, w.position)
+            all_leaders(vehicles, order, w.position, lane, target_lane, c.lane_count, c.lane_width, c.road_length,
+                        w.lane_leader, w.target_leader, w.last_on_lane)
+            for k in range(n):
+                args = (vehicles, order, w.position, k)
+                assert w.lane_leader[k] == leader(*args, lane[k], c.lane_width, c.road_length)
+                assert w.target_leader[k] == leader(*args, target_lane[k], c.lane_width, c.road_length)
+
+
 def test_rollout_from_one_scene_repeated():
     """Three copies of one scene roll out as that scene does alone, from its own start, and leave it alone."""
     sim = TwinSimulator(PARAMS, 1, seed=9)

@@ -75,20 +75,21 @@ def find_observed_vehicles(
 ) -> None:
     """Fill ``slot_vehicle[6]`` with the index into ``others`` of each slot's vehicle, -1 if empty.
 
-    ``ego`` is [x, y, heading, speed]; ``others`` is (V, 4) with the same columns.
+    ``ego`` is [x, y, heading, speed]; ``others`` is (V, 4) with the same columns. A slot's best |dx| so far
+    is recomputed from the vehicle it holds (the same subtraction, so the same float; +inf while empty)
+    instead of being kept in an array, which spares an allocation per call.
     """
-    best_dx = np.empty(SLOT_COUNT)
     for slot in range(SLOT_COUNT):
         slot_vehicle[slot] = -1
-        best_dx[slot] = np.inf
     for j in range(others.shape[0]):
         dx = others[j, 0] - ego[0]
         if abs(dx) > perception_range:
             continue
         lane = closest_lane(others[j, 1])
         slot = 2 * lane if dx > 0.0 else 2 * lane + 1
-        if abs(dx) < best_dx[slot]:
-            best_dx[slot] = abs(dx)
+        held = slot_vehicle[slot]
+        best_dx = np.inf if held < 0 else abs(others[held, 0] - ego[0])
+        if abs(dx) < best_dx:
             slot_vehicle[slot] = j
 
 

@@ -43,6 +43,12 @@ def vehicle_gap_and_rate(
     dy = other[1] - ego[1]
     dvx = other[3] * np.cos(other[2]) - ego[3] * np.cos(ego[2])
     dvy = other[3] * np.sin(other[2]) - ego[3] * np.sin(ego[2])
+    return _gap_and_rate(dx, dy, dvx, dvy, same_lane)
+
+
+@njit(cache=True, inline="always")
+def _gap_and_rate(dx: float, dy: float, dvx: float, dvy: float, same_lane: bool) -> tuple[float, float]:
+    """:func:`vehicle_gap_and_rate` from the relative position (dx, dy) [m] and velocity (dvx, dvy) [m/s]."""
     gap_x = max(abs(dx) - VEHICLE_LENGTH, 0.0)
     gap_y = max(abs(dy) - VEHICLE_WIDTH, 0.0)
     rate_x = np.sign(dx) * dvx if (gap_x > 0.0 and same_lane) else 0.0
@@ -139,14 +145,23 @@ def rss_safe_distance(ego: np.ndarray, other: np.ndarray, same_lane: bool, rss: 
     """
     ego_vx, ego_vy = ego[3] * np.cos(ego[2]), ego[3] * np.sin(ego[2])
     other_vx, other_vy = other[3] * np.cos(other[2]), other[3] * np.sin(other[2])
+    return _rss_safe_distance(ego[0], ego[1], ego_vx, ego_vy, other[0], other[1], other_vx, other_vy, same_lane, rss)
+
+
+@njit(cache=True, inline="always")
+def _rss_safe_distance(
+    ego_x: float, ego_y: float, ego_vx: float, ego_vy: float,
+    other_x: float, other_y: float, other_vx: float, other_vy: float, same_lane: bool, rss: tuple,
+) -> float:
+    """:func:`rss_safe_distance` from both positions [m] and velocities (v cos psi, v sin psi) [m/s]."""
     rho_ego, rho_others = rss[RSS_RESPONSE_TIME_EGO], rss[RSS_RESPONSE_TIME_OTHERS]
     if same_lane:
         a_acc, b_min, b_max = rss[RSS_LON_ACCELERATION_MAX], rss[RSS_LON_BRAKE_MIN], rss[RSS_LON_BRAKE_MAX]
-        if other[0] > ego[0]:
+        if other_x > ego_x:
             return rss_longitudinal_distance(ego_vx, other_vx, rho_ego, a_acc, b_min, b_max)
         return rss_longitudinal_distance(other_vx, ego_vx, rho_others, a_acc, b_min, b_max)
     a_lat, b_lat, mu = rss[RSS_LAT_ACCELERATION_MAX], rss[RSS_LAT_BRAKE_MIN], rss[RSS_LAT_MARGIN]
-    if other[1] > ego[1]:
+    if other_y > ego_y:
         return rss_lateral_distance(ego_vy, other_vy, rho_ego, rho_others, a_lat, b_lat, mu)
     return rss_lateral_distance(other_vy, ego_vy, rho_others, rho_ego, a_lat, b_lat, mu)
 
@@ -182,22 +197,35 @@ def scene_safety_index(
 ) -> float:
     """phi(s) of the selected index: the maximum of the barrier over both road edges (safe distance
     sigma + edge_d_min) and the observed vehicles (sigma + the pair's RSS distance if ``use_rss``, else
-    sigma + d_min)."""
+    sigma + d_min).
+
+    The same operations as :func:`barrier`, :func:`vehicle_gap_and_rate` and :func:`rss_safe_distance` on the
+    same values, each vehicle's velocity v (cos psi, sin psi) computed once and the edges' (sigma +
+    edge_d_min)^n once (those functions recompute them per call), so the result is the same float."""
     ego_lane = closest_lane(ego[1])
+    ego_vx = ego[3] * np.cos(ego[2])
     ego_vy = ego[3] * np.sin(ego[2])
     right_distance = max(RIGHT_ROAD_EDGE - ego[1], 0.0)
     left_distance = max(ego[1] - LEFT_ROAD_EDGE, 0.0)
+    edge_safe_power = (sigma + edge_d_min) ** n
     phi = max(
-        barrier(right_distance, -ego_vy, sigma + edge_d_min, n, k),
-        barrier(left_distance, ego_vy, sigma + edge_d_min, n, k),
+        edge_safe_power - right_distance**n - k * -ego_vy,
+        edge_safe_power - left_distance**n - k * ego_vy,
     )
     for slot in range(SLOT_COUNT):
         j = slot_vehicle[slot]
         if j < 0:
             continue
         same_lane = closest_lane(others[j, 1]) == ego_lane
-        gap, rate = vehicle_gap_and_rate(ego, others[j], same_lane)
-        safe_distance = rss_safe_distance(ego, others[j], same_lane, rss) if use_rss else d_min
+        other_vx = others[j, 3] * np.cos(others[j, 2])
+        other_vy = others[j, 3] * np.sin(others[j, 2])
+        gap, rate = _gap_and_rate(others[j, 0] - ego[0], others[j, 1] - ego[1], other_vx - ego_vx, other_vy - ego_vy,
+                                  same_lane)
+        if use_rss:
+            safe_distance = _rss_safe_distance(ego[0], ego[1], ego_vx, ego_vy, others[j, 0], others[j, 1], other_vx,
+                                               other_vy, same_lane, rss)
+        else:
+            safe_distance = d_min
         phi = max(phi, barrier(gap, rate, sigma + safe_distance, n, k))
     return phi
 

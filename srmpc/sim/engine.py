@@ -18,6 +18,7 @@ The observation, safety index and reward are the scenario's own numba kernels
 
 from collections import namedtuple
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -120,7 +121,8 @@ Workspace = namedtuple(
         "last_on_lane",  # (lanes,) int64
     ],
 )
-"""Work buffers of :func:`simulate_in`, allocated once per scene (their contents carry nothing)."""
+"""Work buffers of :func:`simulate_in`, allocated once per kernel call (per block of scenes in
+:func:`step_parallel`); their contents carry nothing from one scene or step to the next."""
 
 
 @njit(cache=True, error_model="numpy")
@@ -203,11 +205,18 @@ def simulate_in(s, c, b: int, steering: float, acceleration: float, w) -> None:
 @njit(cache=True, error_model="numpy")
 def step_scene(s, c, out, actions: np.ndarray, b: int, auto_reset: bool) -> None:
     """Control step of scene b with ``actions[b]`` = (delta [rad], a [m/s^2]); fill ``out[.][b]``."""
+    step_scene_in(s, c, out, actions, b, auto_reset, workspace(s.vehicles.shape[1], c.lane_count),
+                  np.empty(SLOT_COUNT, dtype=np.int64), np.empty(OBSERVATION_SIZE))
+
+
+@njit(cache=True, error_model="numpy")
+def step_scene_in(s, c, out, actions: np.ndarray, b: int, auto_reset: bool, w, slot_vehicle: np.ndarray,
+                  raw: np.ndarray) -> None:
+    """:func:`step_scene` with the work buffers ``w`` (a :data:`Workspace`), ``slot_vehicle`` (6,) int64 and
+    ``raw`` (30,) float64, whose contents carry nothing from one call to the next."""
     n = c.vehicles
     ego = n - 1
-    simulate(s, c, b, actions[b, 0], actions[b, 1])
-    slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
-    raw = np.empty(OBSERVATION_SIZE)
+    simulate_in(s, c, b, actions[b, 0], actions[b, 1], w)
     phi = measure(s, c, b, out.observation[b], slot_vehicle, raw)
     x, y = s.vehicles[b, ego, X], s.vehicles[b, ego, Y]
     heading, speed = s.vehicles[b, ego, HEADING], s.vehicles[b, ego, SPEED]
@@ -233,16 +242,27 @@ def step_scene(s, c, out, actions: np.ndarray, b: int, auto_reset: bool) -> None
 
 @njit(cache=True, error_model="numpy")
 def step_serial(s, c, out, actions: np.ndarray, auto_reset: bool) -> None:
-    """All scenes, one after the other (one thread)."""
+    """All scenes, one after the other (one thread), with one set of work buffers."""
+    w = workspace(s.vehicles.shape[1], c.lane_count)
+    slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
+    raw = np.empty(OBSERVATION_SIZE)
     for b in range(s.vehicles.shape[0]):
-        step_scene(s, c, out, actions, b, auto_reset)
+        step_scene_in(s, c, out, actions, b, auto_reset, w, slot_vehicle, raw)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def step_parallel(s, c, out, actions: np.ndarray, auto_reset: bool) -> None:
-    """All scenes, spread over numba's threads (``numba.set_num_threads``)."""
-    for b in prange(s.vehicles.shape[0]):
-        step_scene(s, c, out, actions, b, auto_reset)
+    """All scenes, spread over numba's threads (``numba.set_num_threads``): one contiguous block of scenes
+    per thread, each block with its own work buffers. Scenes are independent, so how they are split
+    changes no result."""
+    scenes = s.vehicles.shape[0]
+    blocks = min(numba.get_num_threads(), scenes)
+    for block in prange(blocks):
+        w = workspace(s.vehicles.shape[1], c.lane_count)
+        slot_vehicle = np.empty(SLOT_COUNT, dtype=np.int64)
+        raw = np.empty(OBSERVATION_SIZE)
+        for b in range(block * scenes // blocks, (block + 1) * scenes // blocks):
+            step_scene_in(s, c, out, actions, b, auto_reset, w, slot_vehicle, raw)
 
 
 @njit(cache=True, error_model="numpy")

@@ -24,6 +24,7 @@ from srmpc.sim.constants import (
     IDM_TIME_WANTED,
     KP_HEADING,
     KP_LATERAL,
+    LANE_END_MARGIN,
     MAX_STEERING_ANGLE,
     NEIGHBOUR_LANE_MARGIN,
     VEHICLE_LENGTH,
@@ -123,24 +124,33 @@ def all_leaders(
 
     Sweeping ``order`` from the front, the last vehicle seen on each lane is the leader of the
     next vehicle behind it on that lane. This equals :func:`leader` whenever no two x are exactly
-    equal (ties are resolved by road order there); on a tie the scan :func:`leader` is used.
-    ``last_on_lane`` is a work buffer of at least ``lane_count`` int64.
+    equal (ties are resolved by road order there); on a tie the scan :func:`leader` is used. The tie
+    test runs inside the sweep (consecutive x in ``order`` compared with ``==``, as a separate pass
+    would) and the fallback overwrites every entry, so a sweep cut short by a tie leaves nothing behind.
+    :func:`~srmpc.sim.vehicle.on_lane`'s two conditions are evaluated separately (the longitudinal one
+    once per vehicle, the lateral one per lane), on the same floats. ``last_on_lane`` is a work buffer
+    of at least ``lane_count`` int64.
     """
     n = order.shape[0]
-    for p in range(1, n):
-        if vehicles[order[p], X] == vehicles[order[p - 1], X]:
-            for k in range(n):
-                lane_leader[k] = leader(vehicles, order, position, k, lane[k], lane_width, road_length)
-                target_leader[k] = leader(vehicles, order, position, k, target_lane[k], lane_width, road_length)
-            return
     last_on_lane[:lane_count] = -1
+    lateral_limit = lane_width / 2 + NEIGHBOUR_LANE_MARGIN
+    x_ahead = np.nan  # x of the vehicle one place ahead in ``order`` (none: compares unequal)
     for p in range(n - 1, -1, -1):
         k = order[p]
+        x = vehicles[k, X]
+        if x == x_ahead:
+            for m in range(n):
+                lane_leader[m] = leader(vehicles, order, position, m, lane[m], lane_width, road_length)
+                target_leader[m] = leader(vehicles, order, position, m, target_lane[m], lane_width, road_length)
+            return
+        x_ahead = x
         lane_leader[k] = last_on_lane[lane[k]]
         target_leader[k] = last_on_lane[target_lane[k]]
-        for candidate_lane in range(lane_count):
-            if on_lane(vehicles[k, X], vehicles[k, Y], candidate_lane, lane_width, road_length, NEIGHBOUR_LANE_MARGIN):
-                last_on_lane[candidate_lane] = k
+        if -LANE_END_MARGIN <= x < road_length + LANE_END_MARGIN:  # on_lane's longitudinal condition
+            y = vehicles[k, Y]
+            for candidate_lane in range(lane_count):
+                if abs(y - candidate_lane * lane_width) <= lateral_limit:  # on_lane's lateral condition
+                    last_on_lane[candidate_lane] = k
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -29,7 +29,7 @@ from srmpc.sim import engine
 from srmpc.sim.constants import SimConstants
 from srmpc.sim.engine import measure, simulate_in, workspace
 from srmpc.sim.mlp import MlpPolicy, mlp_action
-from srmpc.sim.state import HEADING, SPEED, SceneState, X, Y
+from srmpc.sim.state import HEADING, SPEED, SceneState, StateArrays, X, Y
 from srmpc.sim.vehicle import on_lane
 
 
@@ -49,17 +49,6 @@ class Rollout:
     """(B, H) bool: the ego had crashed or left the road after step t."""
     others: np.ndarray | None = None
     """(B, H + 1, N - 1, 4) the other vehicles' states, if recorded."""
-
-
-def _allocate(scenes: int, horizon: int, vehicles: int, record_others: bool) -> Rollout:
-    return Rollout(
-        ego=np.empty((scenes, horizon + 1, 4)),
-        actions=np.empty((scenes, horizon, 2)),
-        cost=np.empty((scenes, horizon)),
-        reward_prime=np.empty((scenes, horizon)),
-        terminated=np.zeros((scenes, horizon), dtype=np.bool_),
-        others=np.empty((scenes, horizon + 1, vehicles - 1, 4)) if record_others else None,
-    )
 
 
 RolloutBuffers = namedtuple("RolloutBuffers", ["slot_vehicle", "raw", "observation", "h0", "h1", "z", "work"])
@@ -129,27 +118,54 @@ def rollout_scene_in(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash
 
 
 @njit(cache=True, error_model="numpy")
-def _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-                       ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
-    buffers = rollout_buffers(s.vehicles.shape[1], c.lane_count, w0.shape[1], w1.shape[1], w2.shape[1])
-    rollout_scene_in(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-                     ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others, buffers)
+def _empty_like(s):
+    """Uninitialized :data:`~srmpc.sim.state.StateArrays` of the same shapes and dtypes as ``s``."""
+    return StateArrays(np.empty_like(s.vehicles), np.empty_like(s.control), np.empty_like(s.crashed),
+                       np.empty_like(s.impact), np.empty_like(s.has_impact), np.empty_like(s.lane),
+                       np.empty_like(s.target_lane), np.empty_like(s.target_speed), np.empty_like(s.delta),
+                       np.empty_like(s.ego_rank), np.empty_like(s.steps), np.empty_like(s.phi), np.empty_like(s.rng),
+                       np.empty_like(s.order))
 
 
 @njit(cache=True, error_model="numpy")
-def _rollout_mlp_serial(s, c, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-                        ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
-    for b in range(s.vehicles.shape[0]):
-        _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-                           ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others)
+def _rollout_outputs(scenes, horizon, vehicles, record_others):
+    """The :class:`Rollout` arrays (ego, actions, cost, r', terminated, others); others is a (1, 1, 1, 4)
+    placeholder unless ``record_others``."""
+    others_shape = (scenes, horizon + 1, vehicles - 1, 4) if record_others else (1, 1, 1, 4)
+    return (np.empty((scenes, horizon + 1, 4)), np.empty((scenes, horizon, 2)), np.empty((scenes, horizon)),
+            np.empty((scenes, horizon)), np.zeros((scenes, horizon), dtype=np.bool_), np.empty(others_shape))
+
+
+@njit(cache=True, error_model="numpy")
+def _rollout_mlp_serial(source, c, horizon, w0, b0, w1, b1, w2, b2, low, high, squash, record_others):
+    """Every scene of ``source`` (not modified: each scene is copied into a work state first), one after the
+    other; the work state, the buffers and the outputs are allocated once per call. Returns the
+    :func:`_rollout_outputs` tuple."""
+    scenes, vehicles = source.vehicles.shape[0], source.vehicles.shape[1]
+    ego_out, action_out, cost_out, reward_out, terminated_out, others_out = outputs = _rollout_outputs(
+        scenes, horizon, vehicles, record_others)
+    work = _empty_like(source)
+    buffers = rollout_buffers(vehicles, c.lane_count, w0.shape[1], w1.shape[1], w2.shape[1])
+    for b in range(scenes):
+        copy_scene(source, work, b)
+        rollout_scene_in(work, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
+                         ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others, buffers)
+    return outputs
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _rollout_mlp_parallel(s, c, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-                          ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others):
-    for b in prange(s.vehicles.shape[0]):
-        _rollout_mlp_scene(s, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-                           ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others)
+def _rollout_mlp_parallel(source, c, horizon, w0, b0, w1, b1, w2, b2, low, high, squash, record_others):
+    """:func:`_rollout_mlp_serial` with the scenes spread over numba's threads (buffers per scene)."""
+    scenes, vehicles = source.vehicles.shape[0], source.vehicles.shape[1]
+    ego_out, action_out, cost_out, reward_out, terminated_out, others_out = outputs = _rollout_outputs(
+        scenes, horizon, vehicles, record_others)
+    work = _empty_like(source)
+    for b in prange(scenes):
+        copy_scene(source, work, b)
+        buffers = rollout_buffers(vehicles, c.lane_count, w0.shape[1], w1.shape[1], w2.shape[1])
+        rollout_scene_in(work, c, b, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
+                         ego_out, action_out, cost_out, reward_out, terminated_out, others_out, record_others, buffers)
+    return outputs
 
 
 def rollout(
@@ -166,18 +182,24 @@ def rollout(
     """
     if horizon < 1:
         raise ValueError(f"horizon={horizon}: must be >= 1")
-    work = state.copy()
-    scenes, vehicles = work.scenes, work.vehicle_count
-    result = _allocate(scenes, horizon, vehicles, record_others)
-    others = result.others if record_others else np.empty((1, 1, 1, 4))
+    scenes, vehicles = state.scenes, state.vehicle_count
     if parallel is None:
         parallel = numba.get_num_threads() > 1 and scenes >= 16 * numba.get_num_threads()
     if isinstance(policy, MlpPolicy) and len(policy.weights) == 3:
         kernel = _rollout_mlp_parallel if parallel else _rollout_mlp_serial
         (w0, w1, w2), (b0, b1, b2), low, high, squash = policy.packed
-        kernel(work.arrays(), constants, horizon, w0, b0, w1, b1, w2, b2, low, high, squash,
-               result.ego, result.actions, result.cost, result.reward_prime, result.terminated, others, record_others)
-        return result
+        ego, actions, cost, reward, terminated, others = kernel(state.arrays(), constants, horizon, w0, b0, w1, b1,
+                                                                w2, b2, low, high, squash, record_others)
+        return Rollout(ego, actions, cost, reward, terminated, others if record_others else None)
+    work = state.copy()
+    result = Rollout(
+        ego=np.empty((scenes, horizon + 1, 4)),
+        actions=np.empty((scenes, horizon, 2)),
+        cost=np.empty((scenes, horizon)),
+        reward_prime=np.empty((scenes, horizon)),
+        terminated=np.zeros((scenes, horizon), dtype=np.bool_),
+        others=np.empty((scenes, horizon + 1, vehicles - 1, 4)) if record_others else None,
+    )
     out = engine.allocate_outputs(scenes)
     observation = np.empty((scenes, OBSERVATION_SIZE), dtype=np.float32)
     engine.observe(work.arrays(), constants, observation, np.empty(scenes))

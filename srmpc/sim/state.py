@@ -122,7 +122,9 @@ class SceneState:
 
     def arrays(self) -> StateArrays:
         """The arrays as the kernels' tuple (views, not copies)."""
-        return StateArrays(*(getattr(self, f.name) for f in fields(self)))
+        return StateArrays(self.vehicles, self.control, self.crashed, self.impact, self.has_impact, self.lane,
+                           self.target_lane, self.target_speed, self.delta, self.ego_rank, self.steps, self.phi,
+                           self.rng, self.order)
 
     def copy(self) -> SceneState:
         """A deep copy (a snapshot)."""
