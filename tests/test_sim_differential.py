@@ -5,7 +5,7 @@ action sequence to both, and require at every step the same position, heading an
 vehicle (1e-6 in float64; in practice they agree bit for bit), the same crash flags, termination
 step and reason, truncation, and the same observation, r, r', SI cost, event cost and vx.
 
-Default suite: 50 seeds per traffic level on the full scenario (41 vehicles), 100 steps for every
+Default suite: 30 seeds per traffic level on the full scenario (41 vehicles), 100 steps for every
 10th seed and 25 for the others (episodes with random actions often end earlier, by collision or
 road exit). ``slow``: 500 seeds per level, up to the full 400 steps.
 """
@@ -101,7 +101,7 @@ def _summarize(label: str, results: list[dict]) -> None:
 @pytest.mark.parametrize("traffic", sorted(TRAFFIC_GAPS))
 def test_twin_matches_highway_env_step_for_step(traffic):
     env = SrmpcHighwayEnv(ScenarioParameters(traffic=traffic, mean_spawn_gap_m=TRAFFIC_GAPS[traffic]))
-    results = [run_differential(env, seed, steps=100 if seed % 10 == 0 else 25) for seed in range(50)]
+    results = [run_differential(env, seed, steps=100 if seed % 10 == 0 else 25) for seed in range(30)]
     _summarize(traffic, results)
     assert sum(r["termination"] == "collision" for r in results) >= 3  # collisions were exercised
 

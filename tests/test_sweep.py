@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import mlflow
+import pytest
 import yaml
 
 from srmpc.sweep import sweep_jobs
@@ -31,6 +32,7 @@ def _srmpc(tmp_path, *args, timeout=600):
     return subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr)
 
 
+@pytest.mark.slow  # about 45 s: two training jobs started twice; the evaluation sweep below stays default
 def test_seed_sweep_on_submitit_local_runs_each_job_in_its_own_directory_and_resumes_it(tmp_path):
     sweep = tmp_path / "sweep"
     command = ["-m", *TOY_SEED_SWEEP, "hydra/launcher=local", f"hydra.sweep.dir={sweep}"]

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 TOY = ("agent=ppo_lsi agent.task=toy agent.num_envs=16 agent.frames_per_batch=256 agent.minibatch_size=128 "
        "agent.epochs=2 agent.multiplier_steps=2 agent.total_frames=1024")
@@ -50,6 +52,7 @@ def test_bad_jobs_is_one_line():
     assert result.returncode == 2 and "--jobs=-1: must be >= 0" in result.stderr
 
 
+@pytest.mark.slow  # about 40 s: three trainings started at once against one new store
 def test_side_by_side_runs_create_one_mlflow_store_without_a_race(tmp_path):
     tracking = (f"tracking.enabled=true tracking.uri=sqlite:///{tmp_path / 'mlflow.db'} "
                 f"tracking.artifact_location={tmp_path / 'mlruns'} tracking.experiment_name=train-runs-test")
