@@ -53,6 +53,12 @@ def planner_inputs(states, i):
     return states["ego"][i], states["last_input"][i], states["others"][i][:, :n], states["tracking"][i]
 
 
+def stored_step(states, i, guess):
+    """Stored state i with ``guess``'s initial trajectory as the step's data."""
+    ego, last_input, others, tracking = planner_inputs(states, i)
+    return OcpStepData(ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking, last_input, others)
+
+
 def test_ellipse_rows_are_the_gradient_of_the_exact_norm():
     """Row coefficients = d/d(x, y, psi) of min_c g (central differences), row lower = 1 - g + n^T x^r."""
     rng = np.random.default_rng(3)
@@ -87,8 +93,7 @@ def test_converged_plan_is_feasible_and_costs_the_nonlinear_plan_cost(states, so
     """At convergence the plan satisfies the NLP's constraints and F = ``nonlinear_plan_cost`` of its inputs."""
     for i in range(states["ego"].shape[0]):
         ego, last_input, others, tracking = planner_inputs(states, i)
-        result = solver.solve(OcpStepData(ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking,
-                                          last_input, others))
+        result = solver.solve(stored_step(states, i, guess))
         assert result.converged, (i, result.status)
         assert result.primal_infeasibility <= solver.settings.primal_tolerance
         assert result.step_norms[-1] <= solver.settings.stationarity_tolerance
@@ -140,9 +145,7 @@ def test_warm_started_subproblems_converge_as_the_cold(states, guess):
     assert not cold.settings.qp_warm_start
     warm_later, cold_later = 0, 0
     for i in range(states["ego"].shape[0]):
-        ego, last_input, others, tracking = planner_inputs(states, i)
-        step = OcpStepData(ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking, last_input,
-                           others)
+        step = stored_step(states, i, guess)
         warm_result, cold_result = solver.solve(step), cold.solve(step)
         assert warm_result.converged and cold_result.converged, (i, warm_result.status, cold_result.status)
         for result in (warm_result, cold_result):
@@ -173,9 +176,7 @@ def test_stall_test_converges_as_without(states, guess):
     with_test = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True, stall_iterations=3))
     without = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True))
     for i in range(states["ego"].shape[0]):
-        ego, last_input, others, tracking = planner_inputs(states, i)
-        step = OcpStepData(ego, states[f"{guess}_states"][i], states[f"{guess}_inputs"][i], tracking, last_input,
-                           others)
+        step = stored_step(states, i, guess)
         result, reference = with_test.solve(step), without.solve(step)
         assert result.converged and reference.converged, (i, result.status, reference.status)
         assert result.primal_infeasibility <= with_test.settings.primal_tolerance
