@@ -17,15 +17,16 @@ SQP with our Riccati interior-point QP solver, the table's planner OCP) is solve
   and iterations are the sum of both solves);
 
 and IPOPT (``srmpc.mpc.nmpc.casadi_reference``, exact Hessian) from the same primal point. Timed: the
-NMPC's whole solve (its QPs after the first warm-started, ``NmpcSettings(qp_warm_start=True)``), process pinned
+NMPC's whole solve (its QPs after the first warm-started, without the stall test:
+``NmpcSettings(qp_warm_start=True, stall_iterations=0)``), process pinned
 to one core, numba on one thread, after a warm-up solve.
 
 - Warm- against cold-started QP subproblems: right after each NMPC solve, the same NMPC with every QP started
-  cold (``NmpcSettings(qp_warm_start=False)``, the revisions before the warm start) solves it, then the warm-started
+  cold (``NmpcSettings(qp_warm_start=False, stall_iterations=0)``, the revisions before the warm start) solves it, then the warm-started
   NMPC again, so that both compared solves see the same machine load and warm caches (the timed solve above
   follows IPOPT's solves): converged plans, SQP iterations, interior-point iterations per QP and per solve, and
   time, per guess (``qp_warm_start_vs_cold``).
-- The stall test (``NmpcSettings.stall_iterations`` = ``STALL_ITERATIONS``, off by default): after the cold solve, the
+- The stall test (``NmpcSettings.stall_iterations`` = ``STALL_ITERATIONS``, the default): after the cold solve, the
   warm-started NMPC with the stall test solves it, right before the repeated warm solve without it, both timed
   with warm caches: converged plans (and whether each is the plan without the test: same status, iterations and
   objective, hence IPOPT's certificate), statuses, SQP iterations of all solves, mean, median and p99 time, per
@@ -542,8 +543,8 @@ def main() -> None:
     from srmpc.controller_factory import planner_ocp
 
     ocp, _ = planner_ocp(config)
-    solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=True))  # warm-started QPs (module doc)
-    cold_solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=False))
+    solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=True, stall_iterations=0))  # warm-started QPs (module doc)
+    cold_solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=False, stall_iterations=0))
     stall_solver = NmpcSolver(ocp, NmpcSettings(qp_warm_start=True, stall_iterations=STALL_ITERATIONS))
     reference = IpoptReference(ocp)
     ego, last_input, others, tracking = state_inputs(states, 0)
