@@ -11,6 +11,10 @@
 4. ``dvc repro -f``, timed as a whole (``dvc_repro_wall_s``) and stage by stage: a stage runs from its
    ``Running stage '<name>'`` line to the next one (DVC runs stages one after another, so the stage
    times add up to the whole, up to DVC's start). The 1-minute load average is sampled every 15 s.
+   Each stage's core-seconds (``core_s``: user + system CPU time of every process the stage ran, threads
+   included) come from ``/proc`` (Linux): DVC's process tree is read at each stage's start and every 15 s,
+   the CPU of its reaped descendants (``cutime``) plus that of those still running; the last stage's is
+   closed by the ``os.times()`` of DVC's whole run. DVC's own process is not counted in any stage.
 
 5. ``--resume --workdir DIR``: a run that was cut (the machine went away, Ctrl-C) continues in its clone
    with ``dvc repro`` (no ``-f``): the stages it finished are up to date and skipped, the cut stage resumes
@@ -23,7 +27,8 @@ Writes ``results/benchmarks/pipeline.json`` in the source repository, only once 
 succeeded (an interrupted or failed run leaves the previous file as it was, and keeps its directory and
 log for inspection). Keys:
 
-- ``dvc_repro_wall_s``, ``stages`` (name, kind, start and wall time, in pipeline order), ``training_s``
+- ``dvc_repro_wall_s``, ``stages`` (name, kind, start, wall time and core-seconds, in pipeline order), ``core_s``
+  (the stages' core-seconds summed, and per kind in ``core_s_by_kind``), ``training_s``
   (the stages that train), ``downstream_of_training_s`` (every stage that depends, directly or through
   other stages, on a training stage: evaluations, cross-checks, figures, videos, the table), ``other_s``;
 - the target on 2 cores (``targets_s``: 10800 s whole, issue 42's) and the measured time as a ratio to it
@@ -54,6 +59,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import defaultdict
 from pathlib import Path
 
 import yaml
@@ -68,6 +74,52 @@ its time, were 120 min whole and 60 min downstream of training; ``results/benchm
 the targets it was measured against). The 64-core SLURM target is ``SLURM_TARGET_S``."""
 STAGE_LINE = re.compile(r"^Running stage '([^']+)':")
 LOAD_SAMPLE_S = 15.0
+
+
+CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def _proc_stat(pid: int) -> tuple[int, float, float] | None:
+    """(parent pid, own CPU [s], CPU of its reaped children [s]) of a live process, from ``/proc/<pid>/stat``."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text[text.rindex(")") + 2:].split()  # from field 3 (state) on: field n is fields[n - 3]
+    return (int(fields[1]), (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_PER_S,
+            (int(fields[13]) + int(fields[14])) / CLOCK_TICKS_PER_S)
+
+
+def process_tree_cpu_s(root: int) -> tuple[float, float] | None:
+    """CPU seconds (user + system) of process ``root``: its own, and its descendants' (those it and they reaped,
+    ``cutime``, plus the running ones'), read from ``/proc``; None where there is no ``/proc`` or ``root`` is gone."""
+    stats = {}
+    try:
+        entries = [int(entry.name) for entry in os.scandir("/proc") if entry.name.isdigit()]
+    except OSError:
+        return None
+    for pid in entries:
+        stat = _proc_stat(pid)
+        if stat is not None:
+            stats[pid] = stat
+    if root not in stats:
+        return None
+    children = defaultdict(list)
+    for pid, (parent, _, _) in stats.items():
+        children[parent].append(pid)
+    own, descendants = stats[root][1], stats[root][2]
+    stack = list(children[root])
+    while stack:
+        pid = stack.pop()
+        _, cpu, reaped = stats[pid]
+        descendants += cpu + reaped
+        stack.extend(children[pid])
+    return own, descendants
+
+
+def _children_cpu_s() -> float:
+    times = os.times()
+    return times.children_user + times.children_system
 
 
 def run_checked(command: list[str], cwd: Path, log, env: dict | None = None) -> None:
@@ -363,57 +415,83 @@ def timed_repro(clone: Path, bin_dir: Path, log_path: Path, part: dict, state: R
     stages: list[dict] = part["stages"]
     started = time.perf_counter()
     part["started_perf"] = started
+    children_cpu_before = _children_cpu_s()
     with log_path.open("a") as log:
         log.write(f"=== part {len(state.state['parts'])}: dvc repro{' --force' if force else ''} ===\n")
         process = subprocess.Popen([str(bin_dir / "dvc"), "repro", *(["--force"] if force else [])], cwd=clone, env=env,
                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
         assert process.stdout is not None
+        part["dvc_pid"] = process.pid
         for line in process.stdout:
             now = time.perf_counter() - started
             log.write(f"[{now:8.1f} s] {line}")
             log.flush()
             match = STAGE_LINE.match(line)
             if match:
+                tree = process_tree_cpu_s(process.pid)
                 with state.lock:
                     if stages:
                         stages[-1]["wall_s"] = now - stages[-1]["started_s"]
-                    stages.append({"name": match.group(1), "started_s": now, "wall_s": 0.0})
+                        _account_cpu(part, tree)
+                    stages.append({"name": match.group(1), "started_s": now, "wall_s": 0.0,
+                                   "cpu_at_start_s": None if tree is None else tree[1],
+                                   "core_s": None if tree is None else 0.0})
                     part["wall_s"] = now
                 state.write()
                 print(f"[{now:8.1f} s] {match.group(1)}", flush=True)
         returncode = process.wait()
     wall = time.perf_counter() - started
+    dvc_cpu_s = _children_cpu_s() - children_cpu_before  # DVC's own CPU and every stage's, all reaped now
     with state.lock:
         if stages:
             stages[-1]["wall_s"] = wall - stages[-1]["started_s"]
+            if stages[-1]["cpu_at_start_s"] is not None:
+                stages[-1]["core_s"] = dvc_cpu_s - part.get("dvc_own_cpu_s", 0.0) - stages[-1]["cpu_at_start_s"]
         part["wall_s"] = wall
+        part["core_s"] = dvc_cpu_s
         part["finished"] = returncode == 0
+        part.pop("dvc_pid", None)
     state.write()
     return wall, stages, returncode
 
 
+def _account_cpu(part: dict, tree: tuple[float, float] | None) -> None:
+    """The running stage's core-seconds so far, and DVC's own CPU, from a reading of DVC's process tree."""
+    stage = part["stages"][-1]
+    if tree is not None and stage.get("cpu_at_start_s") is not None:
+        part["dvc_own_cpu_s"] = tree[0]
+        stage["core_s"] = tree[1] - stage["cpu_at_start_s"]
+
+
 def refresh_part(part: dict, state: RunState) -> None:
-    """Heartbeat: the running part's wall time, and its current stage's, up to now."""
+    """Heartbeat: the running part's wall time and core-seconds, and its current stage's, up to now."""
+    pid = part.get("dvc_pid")
+    tree = process_tree_cpu_s(pid) if pid is not None else None
     with state.lock:
         now = time.perf_counter() - part.get("started_perf", time.perf_counter())
         part["wall_s"] = now
         if part["stages"]:
             part["stages"][-1]["wall_s"] = now - part["stages"][-1]["started_s"]
+            _account_cpu(part, tree)
     state.write()
 
 
 def merge_parts(parts: list[dict]) -> tuple[float, list[dict]]:
     """The whole run from its parts: total wall time (pauses between parts excluded) and each stage once,
-    in pipeline order, started at its first piece's time on the summed clock, its pieces' walls added."""
+    in pipeline order, started at its first piece's time on the summed clock, its pieces' walls and core-seconds
+    added (None where a piece's were not measured)."""
     offset, merged, by_name = 0.0, [], {}
     for part in parts:
         for stage in part["stages"]:
+            core_s = stage.get("core_s")
             if stage["name"] in by_name:
-                by_name[stage["name"]]["wall_s"] += stage["wall_s"]
-                by_name[stage["name"]]["pieces"] += 1
+                entry = by_name[stage["name"]]
+                entry["wall_s"] += stage["wall_s"]
+                entry["core_s"] = None if entry["core_s"] is None or core_s is None else entry["core_s"] + core_s
+                entry["pieces"] += 1
             else:
                 entry = {"name": stage["name"], "started_s": offset + stage["started_s"], "wall_s": stage["wall_s"],
-                         "pieces": 1}
+                         "core_s": core_s, "pieces": 1}
                 by_name[stage["name"]] = entry
                 merged.append(entry)
         offset += part["wall_s"]
@@ -512,6 +590,9 @@ def main() -> None:
     for stage in stages:
         stage["kind"] = kinds.get(stage["name"], "other")
     sums = {kind: sum(s["wall_s"] for s in stages if s["kind"] == kind) for kind in ("training", "downstream", "other")}
+    measured_cpu = all(s["core_s"] is not None for s in stages)
+    core_s_by_kind = ({kind: sum(s["core_s"] for s in stages if s["kind"] == kind)
+                       for kind in ("training", "downstream", "other")} if measured_cpu else None)
     runs = training_runs(clone, clone / "dvc.yaml", training_stages)
     regenerated = locked_outputs(clone / "dvc.lock")
     differing = sorted(p for p, md5 in regenerated.items() if md5 is not None and committed_outputs.get(p) != md5)
@@ -525,13 +606,15 @@ def main() -> None:
         "training_s": sums["training"],
         "downstream_of_training_s": sums["downstream"],
         "other_s": sums["other"],
+        "core_s": sum(core_s_by_kind.values()) if core_s_by_kind else None,
+        "core_s_by_kind": core_s_by_kind,
         "targets_s": TARGETS_S,
         "ratio_to_target": {k: measured[k] / TARGETS_S[k] for k in TARGETS_S},
         "meets_targets": all(measured[k] <= TARGETS_S[k] for k in TARGETS_S),
         "stages": [{"name": s["name"], "kind": s["kind"], "started_s": s["started_s"], "wall_s": s["wall_s"],
-                    **({"pieces": s["pieces"]} if s["pieces"] > 1 else {})} for s in stages],
+                    "core_s": s["core_s"], **({"pieces": s["pieces"]} if s["pieces"] > 1 else {})} for s in stages],
         "projections": projected,
-        "parts": [{"wall_s": p["wall_s"], "stages_run": len(p["stages"]), "finished": p["finished"]}
+        "parts": [{"wall_s": p["wall_s"], "core_s": p.get("core_s"), "stages_run": len(p["stages"]), "finished": p["finished"]}
                   for p in state.state["parts"]],
         "n_stages": len(stages),
         "training_runs": runs,

@@ -75,6 +75,32 @@ def test_timed_repro_times_every_stage_in_order(project):
     assert outputs == {name: hashlib.md5((project / name).read_bytes()).hexdigest() for name in outputs}
 
 
+BURN = """import subprocess, sys
+subprocess.run([sys.executable, "-c", "import time\\nt = time.process_time()\\nwhile time.process_time() - t < 0.6: pass"],
+               check=True)
+open("episodes.txt", "w").write(open("policy.txt").read())
+"""
+
+
+def test_each_stage_gets_the_core_seconds_of_its_processes(project):
+    """A stage whose child process burns 0.6 s of CPU is charged at least that (the grandchild is reaped by the
+    stage, the stage by DVC); the stage that sleeps 1.5 s is charged far less than its wall time."""
+    (project / "burn.py").write_text(BURN)
+    (project / "dvc.yaml").write_text(DVC_YAML.replace(
+        '''python -c "open('episodes.txt', 'w').write(open('policy.txt').read())"''', "python burn.py"))
+    state, part = _part(project)
+    wall, stages, returncode = pipeline_time.timed_repro(project, Path(sys.executable).parent,
+                                                         project / "repro.log", part, state, force=True)
+    assert returncode == 0
+    core = {s["name"]: s["core_s"] for s in stages}
+    assert core["evaluate"] >= 0.6, core
+    assert core["train"] < 1.0 < stages[1]["wall_s"], (core, stages)
+    assert all(c > 0 for c in core.values()), core  # every stage starts a Python interpreter
+    assert part["core_s"] >= sum(core.values()), (part["core_s"], core)  # DVC's own CPU on top
+    _, merged = pipeline_time.merge_parts(state.state["parts"])
+    assert [s["core_s"] for s in merged] == [core[s["name"]] for s in merged]
+
+
 def test_a_failing_stage_gives_its_exit_code(project):
     (project / "dvc.yaml").write_text(DVC_YAML.replace("open('table.txt', 'w')", "exit(3) or open('table.txt', 'w')"))
     state, part = _part(project)
