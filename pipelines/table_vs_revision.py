@@ -15,7 +15,12 @@ n_steps, v_x):
 - ``agrees``: the paired interval contains 0, and each value lies in the other's interval;
 - ``identical_episodes``: how many episodes gave exactly the same row (all four metrics).
 
-``all_agree`` is true when every cell agrees. Nothing here is a test: a cell that moves is a finding.
+``all_agree`` is true when every cell of the table agrees. Nothing here is a test: a cell that moves is a finding.
+
+The same comparison for every other evaluation under ``results/evaluation/<group>/<name>_<traffic>`` (the
+operating point's, the NMPC's, the trade-off's, ...), keyed by experiment and traffic under ``experiments``
+(``experiments_all_agree``, and ``moved``: the cells that do not agree, ``experiment traffic metric``); an
+evaluation that the revision does not have is listed under ``new``.
 """
 
 from __future__ import annotations
@@ -53,11 +58,26 @@ def path_before_experiments(path: str) -> str:
     return path.replace("results/evaluation/table/", "results/evaluation/twin/")
 
 
-def at_revision(revision: str, path: str) -> pd.DataFrame:
+def evaluation_cells(root: Path = ROOT) -> list[tuple[str, str, str]]:
+    """(experiment, traffic, episodes path) of every evaluation in the working tree, sorted."""
+    cells = []
+    for path in sorted((root / "results" / "evaluation").glob("*/*/episodes.csv")):
+        name, _, traffic = path.parent.name.rpartition("_")
+        if traffic in TRAFFIC:
+            cells.append((f"{path.parent.parent.name}/{name}", traffic, path.relative_to(root).as_posix()))
+    return cells
+
+
+def _show(revision: str, path: str) -> subprocess.CompletedProcess:
     shown = subprocess.run(["git", "show", f"{revision}:{path}"], cwd=ROOT, capture_output=True, text=True)
     if shown.returncode != 0:  # a revision before the experiment folders
         shown = subprocess.run(["git", "show", f"{revision}:{path_before_experiments(path)}"], cwd=ROOT,
                                capture_output=True, text=True)
+    return shown
+
+
+def at_revision(revision: str, path: str) -> pd.DataFrame:
+    shown = _show(revision, path)
     if shown.returncode != 0:
         raise SystemExit(f"table_vs_revision: --revision {revision}: no {path} there "
                          f"({shown.stderr.strip().splitlines()[-1] if shown.stderr.strip() else 'git show failed'})")
@@ -118,11 +138,24 @@ def main() -> None:
                       f"{'' if c['agrees'] else ' MOVED'}" for m, c in comparison["cells"].items()))
     result["all_agree"] = all(cell["agrees"] for level in result["traffic"].values()
                               for row in level.values() for cell in row["cells"].values())
+    result["experiments"], result["new"], result["moved"] = {}, [], []
+    for experiment, traffic, path in evaluation_cells():
+        if _show(args.revision, path).returncode != 0:
+            result["new"].append(f"{experiment} {traffic}")
+            continue
+        comparison = compare_cells(at_revision(args.revision, path), pd.read_csv(ROOT / path))
+        result["experiments"].setdefault(experiment, {})[traffic] = comparison
+        moved = [f"{experiment} {traffic} {m}" for m, c in comparison["cells"].items() if not c["agrees"]]
+        result["moved"] += moved
+        print(f"{experiment:55s} {traffic:5s} identical {comparison['identical_episodes']:4d}/"
+              f"{comparison['episodes_paired']}{'  MOVED' if moved else ''}")
+    result["experiments_all_agree"] = not result["moved"]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     temporary = args.out.with_name(args.out.name + ".tmp")
     temporary.write_text(json.dumps(result, indent=1) + "\n")
     os.replace(temporary, args.out)
-    print(f"all cells agree: {result['all_agree']} ({args.out})")
+    print(f"all table cells agree: {result['all_agree']}; every evaluation: {result['experiments_all_agree']} "
+          f"({len(result['moved'])} cells moved, {len(result['new'])} new; {args.out})")
 
 
 if __name__ == "__main__":

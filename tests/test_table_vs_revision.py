@@ -26,3 +26,16 @@ def test_identical_episodes_agree_and_a_shift_beyond_the_noise_does_not():
     moved = table_vs_revision.compare_cells(before, faster)
     assert not moved["cells"]["mean_vx"]["agrees"] and moved["cells"]["mean_return"]["agrees"]
     assert abs(moved["cells"]["mean_vx"]["paired"] - 0.5) < 1e-12
+
+
+def test_every_evaluation_is_found_by_experiment_and_traffic(tmp_path):
+    for folder in ("nmpc/rollout_dense", "nmpc/rollout_paper_operating_point_light", "table/srmpc_light"):
+        (tmp_path / "results" / "evaluation" / folder).mkdir(parents=True)
+        (tmp_path / "results" / "evaluation" / folder / "episodes.csv").write_text("seed\n0\n")
+    (tmp_path / "results" / "evaluation" / "table" / "notes").mkdir()  # no traffic suffix, no episodes
+    assert table_vs_revision.evaluation_cells(tmp_path) == [
+        ("nmpc/rollout", "dense", "results/evaluation/nmpc/rollout_dense/episodes.csv"),
+        ("nmpc/rollout_paper_operating_point", "light",
+         "results/evaluation/nmpc/rollout_paper_operating_point_light/episodes.csv"),
+        ("table/srmpc", "light", "results/evaluation/table/srmpc_light/episodes.csv"),
+    ]
