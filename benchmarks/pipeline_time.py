@@ -256,14 +256,18 @@ def slurm_jobs(stage: dict, runs: list[dict], evaluations: set[str], measured_co
                overhead_s: float) -> list[float]:
     """The one-core SLURM jobs of ``stage`` and their durations [s]: a training stage's runs (each as measured, side by
     side, one core each) plus the overhead; an evaluation's shards of ``SHARD_EPISODES`` episodes, its episodes' core
-    time (its wall minus ``EVALUATION_START_S``, times the cores it ran on) split evenly, plus the overhead; any other
-    stage as measured, one job."""
+    time split evenly, plus the overhead; any other stage as measured, one job. The episodes' core time is the stage's
+    measured core-seconds less ``EVALUATION_START_S`` on each of the cores it ran on (the shard's own start-up is in
+    the overhead); where core-seconds were not measured, its wall minus ``EVALUATION_START_S`` times those cores."""
     own = [r["wall_s"] for r in runs if r["stage"] == stage["name"]]
     if stage["kind"] == "training" and own:
         return [wall + overhead_s for wall in own]
     if stage["name"].split("@")[0] in evaluations:
         shards = max(1, -(-episodes // SHARD_EPISODES))
-        work = max(stage["wall_s"] - EVALUATION_START_S, 0.0) * measured_cores
+        if stage.get("core_s") is not None:
+            work = max(stage["core_s"] - EVALUATION_START_S * measured_cores, 0.0)
+        else:
+            work = max(stage["wall_s"] - EVALUATION_START_S, 0.0) * measured_cores
         return [work / shards + overhead_s] * shards
     return [stage["wall_s"]]
 

@@ -173,6 +173,8 @@ def test_slurm_projection_schedules_one_core_jobs_after_their_upstream_stages():
                                        episodes={"evaluate@a-light": 200}, slurm_overhead_s=5.0)
     assert result["slurm_64_cores"]["wall_s"] == pytest.approx(137.0)
     assert result["slurm_64_cores"]["jobs"] == 9
+    measured = {**stages[1], "core_s": 2 * start + 60.0}  # the stage's core-seconds, where measured, over its wall
+    assert pipeline_time.slurm_jobs(measured, runs, {"evaluate"}, 2, 200, 5.0) == [20.0] * 4
     assert pipeline_time.slurm_job_overhead_s() > 0  # from the committed results/benchmarks/slurm_overhead.json
 
 
