@@ -618,8 +618,8 @@ def main() -> None:
         "stages": [{"name": s["name"], "kind": s["kind"], "started_s": s["started_s"], "wall_s": s["wall_s"],
                     "core_s": s["core_s"], **({"pieces": s["pieces"]} if s["pieces"] > 1 else {})} for s in stages],
         "projections": projected,
-        "parts": [{"wall_s": p["wall_s"], "core_s": p.get("core_s"), "stages_run": len(p["stages"]), "finished": p["finished"]}
-                  for p in state.state["parts"]],
+        "parts": [{"wall_s": p["wall_s"], "core_s": p.get("core_s"), "stages_run": len(p["stages"]),
+                   "finished": p["finished"]} for p in state.state["parts"]],
         "n_stages": len(stages),
         "training_runs": runs,
         "training_concurrency": (sum(r["wall_s"] for r in runs) / sums["training"]) if sums["training"] else None,

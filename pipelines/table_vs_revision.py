@@ -76,9 +76,12 @@ def _show(revision: str, path: str) -> subprocess.CompletedProcess:
     return shown
 
 
-def at_revision(revision: str, path: str) -> pd.DataFrame:
+def at_revision(revision: str, path: str, missing_ok: bool = False) -> pd.DataFrame | None:
+    """``path``'s episodes at ``revision``; where it has none, None with ``missing_ok``, else a one-line exit."""
     shown = _show(revision, path)
     if shown.returncode != 0:
+        if missing_ok:
+            return None
         raise SystemExit(f"table_vs_revision: --revision {revision}: no {path} there "
                          f"({shown.stderr.strip().splitlines()[-1] if shown.stderr.strip() else 'git show failed'})")
     return pd.read_csv(io.StringIO(shown.stdout))
@@ -140,10 +143,11 @@ def main() -> None:
                               for row in level.values() for cell in row["cells"].values())
     result["experiments"], result["new"], result["moved"] = {}, [], []
     for experiment, traffic, path in evaluation_cells():
-        if _show(args.revision, path).returncode != 0:
+        before = at_revision(args.revision, path, missing_ok=True)
+        if before is None:
             result["new"].append(f"{experiment} {traffic}")
             continue
-        comparison = compare_cells(at_revision(args.revision, path), pd.read_csv(ROOT / path))
+        comparison = compare_cells(before, pd.read_csv(ROOT / path))
         result["experiments"].setdefault(experiment, {})[traffic] = comparison
         moved = [f"{experiment} {traffic} {m}" for m, c in comparison["cells"].items() if not c["agrees"]]
         result["moved"] += moved

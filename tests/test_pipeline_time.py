@@ -76,8 +76,8 @@ def test_timed_repro_times_every_stage_in_order(project):
 
 
 BURN = """import subprocess, sys
-subprocess.run([sys.executable, "-c", "import time\\nt = time.process_time()\\nwhile time.process_time() - t < 0.6: pass"],
-               check=True)
+BURN_0_6_S = "import time\\nt = time.process_time()\\nwhile time.process_time() - t < 0.6: pass"
+subprocess.run([sys.executable, "-c", BURN_0_6_S], check=True)
 open("episodes.txt", "w").write(open("policy.txt").read())
 """
 
