@@ -21,7 +21,10 @@
    from its persistent outputs (finished episodes, ``last.pt``), the rest run. The state of every part
    (``pipeline_state.json``: its stages and wall time, refreshed every 15 s) adds up: the whole wall time
    is the sum of the parts' (the pause between them not counted), a cut stage's time the sum of its pieces
-   (with one extra start-up), and ``parts`` records each part.
+   (with one extra start-up), and ``parts`` records each part. DVC rewrites ``dvc.lock`` in place after each
+   stage, so a cut at that moment leaves it empty: the run keeps a copy of the last readable one
+   (``dvc.lock.good`` in the workdir, taken as each stage starts), and ``--resume`` puts it back; the stages
+   finished after that copy run again (from their persistent outputs: the episodes' rows, ``last.pt``).
 
 Writes ``results/benchmarks/pipeline.json`` in the source repository, only once ``dvc repro`` has
 succeeded (an interrupted or failed run leaves the previous file as it was, and keeps its directory and
@@ -74,6 +77,8 @@ its time, were 120 min whole and 60 min downstream of training; ``results/benchm
 the targets it was measured against). The 64-core SLURM target is ``SLURM_TARGET_S``."""
 STAGE_LINE = re.compile(r"^Running stage '([^']+)':")
 LOAD_SAMPLE_S = 15.0
+LOCK_BACKUP = "dvc.lock.good"
+"""The workdir's copy of the clone's last readable ``dvc.lock`` (see ``prepare_resume``)."""
 
 
 CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -407,11 +412,45 @@ class RunState:
             os.replace(temporary, self.path)
 
 
-def timed_repro(clone: Path, bin_dir: Path, log_path: Path, part: dict, state: RunState, force: bool
-                ) -> tuple[float, list[dict], int]:
+def readable_lock(path: Path) -> bool:
+    """Whether ``path`` is a ``dvc.lock`` that DVC can read back: a mapping with its ``stages``."""
+    try:
+        content = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return False
+    return isinstance(content, dict) and isinstance(content.get("stages"), dict)
+
+
+def back_up_lock(lock: Path, backup: Path) -> None:
+    """Copy ``lock`` to ``backup`` (atomically) if it is readable; otherwise keep the previous copy."""
+    if readable_lock(lock):
+        temporary = backup.with_name(backup.name + ".tmp")
+        shutil.copyfile(lock, temporary)
+        os.replace(temporary, backup)
+
+
+def prepare_resume(clone: Path, backup: Path) -> str | None:
+    """Make a cut run's clone resumable: remove the locks its gone DVC process left, and put back the last
+    readable ``dvc.lock`` if the cut left it unreadable (DVC was rewriting it). Returns what was done, or
+    None; exits with one line if the lock is unreadable and there is no copy."""
+    for stale in ("rwlock", "lock"):  # left behind by the cut run's DVC process, which is gone
+        (clone / ".dvc" / "tmp" / stale).unlink(missing_ok=True)
+    lock = clone / "dvc.lock"
+    if not lock.exists() or readable_lock(lock):
+        return None
+    if not readable_lock(backup):
+        raise SystemExit(f"pipeline_time: --resume: {lock} is unreadable (the run was cut while DVC wrote it) "
+                         f"and {backup} holds no copy; rebuild it with `dvc commit -f` of the finished stages")
+    shutil.copyfile(backup, lock)
+    return f"{lock} was unreadable (cut while DVC wrote it): put back its copy from the last stage start"
+
+
+def timed_repro(clone: Path, bin_dir: Path, log_path: Path, part: dict, state: RunState, force: bool,
+                lock_backup: Path | None = None) -> tuple[float, list[dict], int]:
     """``dvc repro [-f]`` in ``clone`` with ``bin_dir`` (its virtual environment's) first on PATH: the wall
     time, the stages with their start and wall time, and DVC's exit code. Each line of DVC's output goes
-    to ``log_path`` (appended), with its time; ``part`` (in ``state``) holds the stages and wall time so far."""
+    to ``log_path`` (appended), with its time; ``part`` (in ``state``) holds the stages and wall time so far.
+    As each stage starts, the ``dvc.lock`` its predecessors wrote is copied to ``lock_backup`` (if given)."""
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}",
            "TQDM_DISABLE": "1", "PYTHONUNBUFFERED": "1"}
     env.pop("SRMPC_PARENT_RUN_ID", None)
@@ -433,6 +472,8 @@ def timed_repro(clone: Path, bin_dir: Path, log_path: Path, part: dict, state: R
             match = STAGE_LINE.match(line)
             if match:
                 tree = process_tree_cpu_s(process.pid)
+                if lock_backup is not None:
+                    back_up_lock(clone / "dvc.lock", lock_backup)
                 with state.lock:
                     if stages:
                         stages[-1]["wall_s"] = now - stages[-1]["started_s"]
@@ -563,8 +604,9 @@ def main() -> None:
         if head != state.state["commit"]:
             raise SystemExit(f"pipeline_time: --resume: {clone} is at {head or 'no commit'}, its run at "
                              f"{state.state['commit']}")
-        for stale in ("rwlock", "lock"):  # left behind by the cut run's DVC process, which is gone
-            (clone / ".dvc" / "tmp" / stale).unlink(missing_ok=True)
+        restored = prepare_resume(clone, workdir / LOCK_BACKUP)
+        if restored:
+            print(f"pipeline_time: --resume: {restored}", flush=True)
         print(f"pipeline_time: resuming the run in {clone} (part {len(state.state['parts']) + 1})", flush=True)
     else:
         workdir.mkdir(parents=True, exist_ok=True)
@@ -583,7 +625,7 @@ def main() -> None:
     sampler = LoadSampler(samples, heartbeat=lambda: refresh_part(part, state))
     sampler.start()
     _, _, returncode = timed_repro(clone, clone / ".venv" / "bin", workdir / "dvc_repro.log", part, state,
-                                   force=not args.resume)
+                                   force=not args.resume, lock_backup=workdir / LOCK_BACKUP)
     sampler.stopped.set()
     wall, stages = merge_parts(state.state["parts"])
     if returncode != 0:

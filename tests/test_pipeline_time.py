@@ -185,3 +185,25 @@ def test_evaluation_stages_are_found_by_their_command(tmp_path):
         "  train:\n    cmd: python -m srmpc stage=train agent=ppo\n"
         "  table:\n    cmd: python -m pipelines.paper_table\n")
     assert pipeline_time.evaluation_stage_names(tmp_path / "dvc.yaml") == {"evaluate", "sb3"}
+
+
+
+def test_a_lock_emptied_by_the_cut_is_put_back_from_its_copy(project):
+    """A cut while DVC rewrites ``dvc.lock`` leaves it empty; the copy taken as the last stage started brings the
+    finished stages back, so the resumed part runs only the rest; with no copy, resuming stops with one line."""
+    bin_dir, backup = Path(sys.executable).parent, project / "dvc.lock.good"
+    failing = DVC_YAML.replace("open('episodes.txt', 'w')", "exit(3) or open('episodes.txt', 'w')")
+    (project / "dvc.yaml").write_text(failing)
+    state, part = _part(project)
+    pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state, force=True, lock_backup=backup)
+    assert set(pipeline_time.locked_outputs(backup)) == {"scenario.txt", "policy.txt"}
+    (project / "dvc.yaml").write_text(DVC_YAML)
+    (project / "dvc.lock").write_text("")  # the cut
+    with pytest.raises(SystemExit, match="dvc.lock is unreadable .* holds no copy"):
+        pipeline_time.prepare_resume(project, project / "no-copy")
+    assert "put back" in pipeline_time.prepare_resume(project, backup)
+    assert pipeline_time.prepare_resume(project, backup) is None  # readable now: left as it is
+    part = state.new_part([])
+    _, second, returncode = pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state,
+                                                      force=False, lock_backup=backup)
+    assert returncode == 0 and [s["name"] for s in second] == ["evaluate", "table"]
