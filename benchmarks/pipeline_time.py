@@ -26,6 +26,9 @@
    (``dvc.lock.good`` in the workdir, taken as each stage starts), and ``--resume`` puts it back; the stages
    finished after that copy run again (from their persistent outputs: the episodes' rows, ``last.pt``).
 
+6. ``--report --workdir DIR``: write ``pipeline.json`` again from a finished run (its state and clone), running
+   nothing: for a report whose code changed after the run (a new key, the SLURM model).
+
 Writes ``results/benchmarks/pipeline.json`` in the source repository, only once ``dvc repro`` has
 succeeded (an interrupted or failed run leaves the previous file as it was, and keeps its directory and
 log for inspection). Keys:
@@ -34,6 +37,10 @@ log for inspection). Keys:
   (the stages' core-seconds summed, and per kind in ``core_s_by_kind``), ``training_s``
   (the stages that train), ``downstream_of_training_s`` (every stage that depends, directly or through
   other stages, on a training stage: evaluations, cross-checks, figures, videos, the table), ``other_s``;
+- ``groups``: the stages summed per group of ``dvc.yaml`` (``evaluate@nmpc``, ``train``, ...), most core-seconds
+  first, with their shares of the whole;
+- ``n_stages``, ``n_stages_in_dvc_lock`` and ``covers_every_stage``: whether the timed stages are exactly those of
+  the clone's ``dvc.lock`` at the end;
 - the target on 2 cores (``targets_s``: 10800 s whole, issue 42's) and the measured time as a ratio to it
   (``ratio_to_target``, <= 1 meets it);
 - ``training_runs``: each training's own wall time (its ``summary.json``), and ``training_concurrency``,
@@ -358,6 +365,33 @@ def projections(stages: list[dict], runs: list[dict], evaluations: set[str], ups
     return result
 
 
+def stage_group(name: str) -> str:
+    """A stage's group in ``dvc.yaml``: an evaluation's experiment folder (``evaluate@nmpc/rollout-dense`` ->
+    ``evaluate@nmpc``), a ``foreach`` stage's name (``designate_policy@ppo`` -> ``designate_policy``), else
+    the stage itself."""
+    base, _, item = name.partition("@")
+    return f"{base}@{item.split('/')[0]}" if base == "evaluate" and "/" in item else base
+
+
+def stage_groups(stages: list[dict]) -> list[dict]:
+    """The stages summed per :func:`stage_group`, most core-seconds first (wall time where not measured),
+    each with its share of the whole's wall time and core-seconds."""
+    groups: dict[str, dict] = {}
+    for stage in stages:
+        name = stage_group(stage["name"])
+        group = groups.setdefault(name, {"group": name, "stages": 0, "wall_s": 0.0, "core_s": 0.0})
+        group["stages"] += 1
+        group["wall_s"] += stage["wall_s"]
+        core_s = stage["core_s"]
+        group["core_s"] = None if group["core_s"] is None or core_s is None else group["core_s"] + core_s
+    wall = sum(g["wall_s"] for g in groups.values())
+    core = None if any(g["core_s"] is None for g in groups.values()) else sum(g["core_s"] for g in groups.values())
+    for group in groups.values():
+        group["share_of_wall"] = group["wall_s"] / wall if wall else None
+        group["share_of_core_s"] = group["core_s"] / core if core else None
+    return sorted(groups.values(), key=lambda g: -(g["core_s"] if core else g["wall_s"]))
+
+
 def training_stage_names(dvc_yaml: Path) -> set[str]:
     """Stages whose command trains: ``python -m srmpc stage=train`` or ``python -m pipelines.train_runs``."""
     return {name for name, command in stage_commands(dvc_yaml).items()
@@ -590,15 +624,19 @@ def main() -> None:
                         help="default: <source>/results/benchmarks/pipeline.json")
     parser.add_argument("--resume", action="store_true",
                         help="continue the cut run in --workdir (its clone and pipeline_state.json)")
+    parser.add_argument("--report", action="store_true",
+                        help="write pipeline.json again from the finished run in --workdir, running nothing")
     args = parser.parse_args()
     source = args.source.resolve()
     output = args.output or source / "results" / "benchmarks" / "pipeline.json"
-    if args.resume and args.workdir is None:
-        raise SystemExit("pipeline_time: --resume needs the --workdir of the run to continue")
+    if (args.resume or args.report) and args.workdir is None:
+        raise SystemExit(f"pipeline_time: {'--resume' if args.resume else '--report'} needs the --workdir of the run")
     workdir = Path(tempfile.mkdtemp(prefix="srmpc-pipeline-")) if args.workdir is None else args.workdir.resolve()
     clone = workdir / "srmpc"
     state_path = workdir / "pipeline_state.json"
-    if args.resume:
+    if args.report:
+        state = RunState.load(state_path)
+    elif args.resume:
         state = RunState.load(state_path)
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=clone, capture_output=True, text=True).stdout.strip()
         if head != state.state["commit"]:
@@ -615,24 +653,44 @@ def main() -> None:
                              "one, or --resume it")
         state = RunState(state_path, set_up_clone(source, workdir, clone))
 
-    commit, setup_s = state.state["commit"], state.state["setup_s"]
-    committed_outputs = state.state["committed_outputs"]
+    if not args.report:
+        load_before = os.getloadavg()[0]
+        samples: list[float] = []
+        part = state.new_part(samples)
+        part["load_average_1min_before"] = load_before
+        sampler = LoadSampler(samples, heartbeat=lambda: refresh_part(part, state))
+        sampler.start()
+        _, _, returncode = timed_repro(clone, clone / ".venv" / "bin", workdir / "dvc_repro.log", part, state,
+                                       force=not args.resume, lock_backup=workdir / LOCK_BACKUP)
+        sampler.stopped.set()
+        if returncode != 0:
+            wall, _ = merge_parts(state.state["parts"])
+            raise SystemExit(f"pipeline_time: dvc repro failed with exit {returncode} after {wall:.0f} s; "
+                             f"log: {workdir / 'dvc_repro.log'} (results/benchmarks/pipeline.json left as it was; "
+                             f"--resume --workdir {workdir} continues it)")
+        part["ended_at"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        state.write()
+    elif not state.state["parts"] or not state.state["parts"][-1]["finished"]:
+        raise SystemExit(f"pipeline_time: --report: the run in {workdir} has not finished; --resume it")
+
+    result = report(state.state, clone)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    temporary = output.with_name(output.name + ".tmp")
+    temporary.write_text(json.dumps(result, indent=2) + "\n")
+    os.replace(temporary, output)
+    print(json.dumps({k: result[k] for k in ("dvc_repro_wall_s", "training_s", "downstream_of_training_s",
+                                             "ratio_to_target", "training_concurrency", "commit")}, indent=1))
+    if not args.keep and args.workdir is None:
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def report(state: dict, clone: Path) -> dict:
+    """``pipeline.json`` of a finished run: its state (every part) and its clone (``dvc.yaml``, ``dvc.lock``,
+    the trainings' summaries)."""
+    committed_outputs = state["committed_outputs"]
     training_stages = training_stage_names(clone / "dvc.yaml")
     kinds = stage_kinds(clone, training_stages)
-    load_before = os.getloadavg()
-    samples: list[float] = []
-    part = state.new_part(samples)
-    sampler = LoadSampler(samples, heartbeat=lambda: refresh_part(part, state))
-    sampler.start()
-    _, _, returncode = timed_repro(clone, clone / ".venv" / "bin", workdir / "dvc_repro.log", part, state,
-                                   force=not args.resume, lock_backup=workdir / LOCK_BACKUP)
-    sampler.stopped.set()
-    wall, stages = merge_parts(state.state["parts"])
-    if returncode != 0:
-        raise SystemExit(f"pipeline_time: dvc repro failed with exit {returncode} after {wall:.0f} s; "
-                         f"log: {workdir / 'dvc_repro.log'} (results/benchmarks/pipeline.json left as it was; "
-                         f"--resume --workdir {workdir} continues it)")
-
+    wall, stages = merge_parts(state["parts"])
     for stage in stages:
         stage["kind"] = kinds.get(stage["name"], "other")
     sums = {kind: sum(s["wall_s"] for s in stages if s["kind"] == kind) for kind in ("training", "downstream", "other")}
@@ -641,13 +699,14 @@ def main() -> None:
                        for kind in ("training", "downstream", "other")} if measured_cpu else None)
     runs = training_runs(clone, clone / "dvc.yaml", training_stages)
     regenerated = locked_outputs(clone / "dvc.lock")
+    locked_stages = set(yaml.safe_load((clone / "dvc.lock").read_text())["stages"])
     differing = sorted(p for p, md5 in regenerated.items() if md5 is not None and committed_outputs.get(p) != md5)
     measured = {"dvc_repro_wall_s": wall, "downstream_of_training_s": sums["downstream"]}
-    samples = [x for p in state.state["parts"] for x in p["load_samples"]] or [os.getloadavg()[0]]
+    samples = [x for p in state["parts"] for x in p["load_samples"]] or [os.getloadavg()[0]]
     evaluations = evaluation_stage_names(clone / "dvc.yaml")
     projected = projections(stages, runs, evaluations, stage_upstreams(clone), available_cores(),
                             evaluation_episodes(clone, stages, evaluations), slurm_job_overhead_s())
-    result = {
+    return {
         "dvc_repro_wall_s": wall,
         "training_s": sums["training"],
         "downstream_of_training_s": sums["downstream"],
@@ -659,35 +718,30 @@ def main() -> None:
         "meets_targets": all(measured[k] <= TARGETS_S[k] for k in TARGETS_S),
         "stages": [{"name": s["name"], "kind": s["kind"], "started_s": s["started_s"], "wall_s": s["wall_s"],
                     "core_s": s["core_s"], **({"pieces": s["pieces"]} if s["pieces"] > 1 else {})} for s in stages],
+        "groups": stage_groups(stages),
         "projections": projected,
         "parts": [{"wall_s": p["wall_s"], "core_s": p.get("core_s"), "stages_run": len(p["stages"]),
-                   "finished": p["finished"]} for p in state.state["parts"]],
+                   "finished": p["finished"]} for p in state["parts"]],
         "n_stages": len(stages),
+        "n_stages_in_dvc_lock": len(locked_stages),
+        "covers_every_stage": {s["name"] for s in stages} == locked_stages,
         "training_runs": runs,
         "training_concurrency": (sum(r["wall_s"] for r in runs) / sums["training"]) if sums["training"] else None,
         "outputs": {"compared": sum(md5 is not None for md5 in regenerated.values()),
                     "same_md5_as_commit": sum(md5 is not None and committed_outputs.get(p) == md5
                                               for p, md5 in regenerated.items()),
                     "differing": differing},
-        "commit": commit,
-        "setup_s": setup_s,
+        "commit": state["commit"],
+        "setup_s": state["setup_s"],
         "cpu_count": os.cpu_count(),
         "available_cores": available_cores(),
-        "load_average_1min_before": load_before[0],
+        "load_average_1min_before": state["parts"][0].get("load_average_1min_before"),
         "load_average_1min_mean_during": sum(samples) / len(samples),
         "load_average_1min_max_during": max(samples),
         "machine": platform.machine(), "processor": _processor(), "python": platform.python_version(),
         "dvc": _dvc_version(clone),
-        "measured_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "measured_at": state["parts"][-1].get("ended_at") or time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
-    output.parent.mkdir(parents=True, exist_ok=True)
-    temporary = output.with_name(output.name + ".tmp")
-    temporary.write_text(json.dumps(result, indent=2) + "\n")
-    os.replace(temporary, output)
-    print(json.dumps({k: result[k] for k in ("dvc_repro_wall_s", "training_s", "downstream_of_training_s",
-                                             "ratio_to_target", "training_concurrency", "commit")}, indent=1))
-    if not args.keep and args.workdir is None:
-        shutil.rmtree(workdir, ignore_errors=True)
 
 
 def _processor() -> str:
@@ -701,7 +755,9 @@ def _processor() -> str:
 
 
 def _dvc_version(clone: Path) -> str:
-    result = subprocess.run([str(clone / ".venv" / "bin" / "dvc"), "--version"], capture_output=True, text=True)
+    dvc = clone / ".venv" / "bin" / "dvc"  # the clone's own (``make install``), else this environment's
+    dvc = dvc if dvc.exists() else Path(sys.executable).parent / "dvc"
+    result = subprocess.run([str(dvc), "--version"], capture_output=True, text=True)
     return result.stdout.strip()
 
 

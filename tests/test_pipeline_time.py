@@ -207,3 +207,25 @@ def test_a_lock_emptied_by_the_cut_is_put_back_from_its_copy(project):
     _, second, returncode = pipeline_time.timed_repro(project, bin_dir, project / "repro.log", part, state,
                                                       force=False, lock_backup=backup)
     assert returncode == 0 and [s["name"] for s in second] == ["evaluate", "table"]
+
+
+def test_the_report_of_a_finished_run_covers_every_locked_stage_and_sums_its_groups(project):
+    state, part = _part(project)
+    _, stages, returncode = pipeline_time.timed_repro(project, Path(sys.executable).parent, project / "repro.log",
+                                                      part, state, force=True)
+    assert returncode == 0
+    result = pipeline_time.report(state.state, project)
+    assert result["covers_every_stage"] and result["n_stages"] == result["n_stages_in_dvc_lock"] == 4
+    assert result["dvc_repro_wall_s"] == pytest.approx(part["wall_s"])
+    assert sorted(g["group"] for g in result["groups"]) == ["evaluate", "scenario", "table", "train"]
+    assert sum(g["core_s"] for g in result["groups"]) == pytest.approx(result["core_s"])
+    assert sum(g["share_of_core_s"] for g in result["groups"]) == pytest.approx(1.0)
+
+
+def test_stage_groups_follow_dvc_yaml():
+    names = ["train", "designate_policy@ppo", "evaluate@nmpc/rollout-dense", "evaluate@nmpc/shifted-light", "table"]
+    assert [pipeline_time.stage_group(n) for n in names] == ["train", "designate_policy", "evaluate@nmpc",
+                                                             "evaluate@nmpc", "table"]
+    groups = pipeline_time.stage_groups([{"name": n, "wall_s": 1.0, "core_s": float(i)} for i, n in enumerate(names)])
+    assert [(g["group"], g["stages"], g["core_s"]) for g in groups] == [
+        ("evaluate@nmpc", 2, 5.0), ("table", 1, 4.0), ("designate_policy", 1, 1.0), ("train", 1, 0.0)]
