@@ -1,6 +1,6 @@
 """Every cell of the paper's table now against the same cell at another git revision, paired on the seeds.
 
-    python -m pipelines.table_vs_revision --revision <commit> [--out results/benchmarks/table_vs_revision.json]
+    python benchmarks/table_vs_revision.py --revision <commit> [--out results/benchmarks/table_vs_revision.json]
 
 A change that alters floating-point results (a faster solver, a new kernel) regenerates every evaluation;
 this says whether the table moved more than its own noise. For each traffic level and each method of
@@ -30,11 +30,11 @@ import io
 import json
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import pandas as pd
 
-from pipelines.reporting import EXPERIMENTS, METHODS, run_of  # the table's rows, and their experiments
 from srmpc.confidence_intervals import (
     BOOTSTRAP_RESAMPLES,
     BOOTSTRAP_SEED,
@@ -44,6 +44,10 @@ from srmpc.confidence_intervals import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # run as a script, this folder is first on the path: the repository's pipelines too
+    sys.path.insert(0, str(ROOT))
+from pipelines.reporting import EXPERIMENTS, METHODS, run_of  # noqa: E402  (the table's rows, their experiments)
+
 TRAFFIC = ("light", "dense")
 OUTPUT = ROOT / "results" / "benchmarks" / "table_vs_revision.json"
 
