@@ -21,6 +21,11 @@ The same comparison for every other evaluation under ``results/evaluation/<group
 operating point's, the NMPC's, the trade-off's, ...), keyed by experiment and traffic under ``experiments``
 (``experiments_all_agree``, and ``moved``: the cells that do not agree, ``experiment traffic metric``); an
 evaluation that the revision does not have is listed under ``new``.
+
+``--after DIR`` takes "after" from another checkout's working tree instead of this one: the results that
+``dvc repro`` regenerated there (on another machine, from nothing: ``benchmarks/pipeline_time.py --keep``'s clone)
+against the committed ones (``--revision HEAD``), e.g. ``--out results/benchmarks/regeneration_vs_committed.json``.
+Its commit and path are recorded (``after``).
 """
 
 from __future__ import annotations
@@ -127,17 +132,25 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--revision", required=True, help="the git revision whose results are 'before'")
     parser.add_argument("--out", type=Path, default=OUTPUT)
+    parser.add_argument("--after", type=Path, default=ROOT,
+                        help="the checkout whose working tree's evaluations are 'after' (default: this one)")
     args = parser.parse_args()
+    after = args.after.resolve()
+    if not (after / "results" / "evaluation").is_dir():
+        raise SystemExit(f"table_vs_revision: --after {args.after}: no results/evaluation/ there")
     commit = subprocess.run(["git", "rev-parse", args.revision], cwd=ROOT, capture_output=True, text=True)
     if commit.returncode != 0:
         raise SystemExit(f"table_vs_revision: --revision {args.revision}: not a git revision")
-    result = {"revision": commit.stdout.strip(), "traffic": {}}
+    after_commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=after, capture_output=True, text=True)
+    result = {"revision": commit.stdout.strip(), "traffic": {},
+              "after": {"commit": after_commit.stdout.strip() or None,
+                        "path": "." if after == ROOT else str(after)}}
     for traffic in TRAFFIC:
         for method in METHODS:
             path = episodes_path(method, traffic)
-            if not (ROOT / path).is_file():
-                raise SystemExit(f"table_vs_revision: {path}: missing in the working tree (dvc repro first)")
-            comparison = compare_cells(at_revision(args.revision, path), pd.read_csv(ROOT / path))
+            if not (after / path).is_file():
+                raise SystemExit(f"table_vs_revision: {after / path}: missing (dvc repro first)")
+            comparison = compare_cells(at_revision(args.revision, path), pd.read_csv(after / path))
             result["traffic"].setdefault(traffic, {})[method] = comparison
             print(f"{traffic:5s} {method:18s} identical {comparison['identical_episodes']:4d}/"
                   f"{comparison['episodes_paired']}  " + "  ".join(
@@ -146,12 +159,12 @@ def main() -> None:
     result["all_agree"] = all(cell["agrees"] for level in result["traffic"].values()
                               for row in level.values() for cell in row["cells"].values())
     result["experiments"], result["new"], result["moved"] = {}, [], []
-    for experiment, traffic, path in evaluation_cells():
+    for experiment, traffic, path in evaluation_cells(after):
         before = at_revision(args.revision, path, missing_ok=True)
         if before is None:
             result["new"].append(f"{experiment} {traffic}")
             continue
-        comparison = compare_cells(before, pd.read_csv(ROOT / path))
+        comparison = compare_cells(before, pd.read_csv(after / path))
         result["experiments"].setdefault(experiment, {})[traffic] = comparison
         moved = [f"{experiment} {traffic} {m}" for m, c in comparison["cells"].items() if not c["agrees"]]
         result["moved"] += moved

@@ -2,6 +2,7 @@
 than its noise, and is flagged when it moved more."""
 
 import importlib.util
+import json
 from pathlib import Path
 
 import numpy as np
@@ -45,3 +46,29 @@ def test_every_evaluation_is_found_by_experiment_and_traffic(tmp_path):
          "results/evaluation/nmpc/rollout_paper_operating_point_light/episodes.csv"),
         ("table/srmpc", "light", "results/evaluation/table/srmpc_light/episodes.csv"),
     ]
+
+
+def test_after_takes_the_evaluations_of_another_checkout(tmp_path, monkeypatch):
+    """``--after DIR``: the table's cells regenerated elsewhere against the committed ones; a copy of the committed
+    episodes agrees everywhere, and one cell whose episodes were all made faster is the one that moves."""
+    from pipelines.reporting import EXPERIMENTS
+
+    root = Path(table_vs_revision.ROOT)
+    monkeypatch.chdir(root)  # the table's folders are found relative to the repository (pipelines.reporting)
+    for experiment in EXPERIMENTS.values():
+        for traffic in table_vs_revision.TRAFFIC:
+            folder = Path("results/evaluation") / f"{experiment}_{traffic}"
+            (tmp_path / folder).mkdir(parents=True)
+            (tmp_path / folder / "episodes.csv").write_bytes((root / folder / "episodes.csv").read_bytes())
+    faster = tmp_path / "results/evaluation/table/ltv_mpc_dense/episodes.csv"
+    episodes = pd.read_csv(faster)
+    episodes["mean_vx"] += 1.0
+    episodes.to_csv(faster, index=False)
+    out = tmp_path / "comparison.json"
+    monkeypatch.setattr("sys.argv", ["table_vs_revision", "--revision", "HEAD", "--after", str(tmp_path),
+                                     "--out", str(out)])
+    table_vs_revision.main()
+    result = json.loads(out.read_text())
+    assert result["after"]["path"] == str(tmp_path) and result["after"]["commit"] is None  # not a checkout
+    assert result["moved"] == ["table/ltv_mpc dense mean_vx"] and not result["all_agree"]
+    assert result["traffic"]["light"]["srmpc"]["identical_episodes"] == 1000
