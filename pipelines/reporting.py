@@ -15,7 +15,7 @@ Every interval uses the bootstrap of ``srmpc.confidence_intervals`` (``BOOTSTRAP
 ``BOOTSTRAP_SEED``), the same one ``python -m srmpc`` prints its table with.
 
 The table (``paper_table``), SRMPC's variants (``srmpc_variants``), the trade-off (``tradeoff``), the
-cross-check (``crosscheck``) and ``benchmarks/table_vs_revision.py`` all read these from here.
+cross-check (``crosscheck``) and ``table_vs_revision`` all read these from here.
 """
 
 from __future__ import annotations
