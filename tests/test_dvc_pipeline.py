@@ -8,12 +8,18 @@
   this pipeline, not an older one;
 - each training directory's committed ``config.yaml`` is what its stage's run composes to today: a run
   defined in ``conf/experiment/training/multiplier_ablation/`` (or by agent and seed) resumes in its own directory
-  instead of being refused there.
+  instead of being refused there;
+- ``dvc status`` finds every stage up to date: each dependency (code, config, upstream results) and each output
+  has the hash ``dvc.lock`` records, so the committed results are those of the committed code (an edit to a
+  stage's dependency, even a docstring, fails here until the stage is rerun, or ``dvc commit``-ed where the edit
+  cannot change its outputs).
 """
 
 from __future__ import annotations
 
 import importlib.util
+import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -149,3 +155,12 @@ def test_every_published_experiment_is_a_cell_in_its_own_folder():
     assert sorted(stage["matrix"]["experiment"]) == published_experiments()
     assert stage["matrix"]["traffic"] == list(TRAFFIC)
     assert not any(dep.startswith("conf") for dep in stage["deps"])
+
+
+def test_every_stage_is_up_to_date_with_the_committed_code():
+    status = subprocess.run([str(Path(sys.executable).parent / "dvc"), "status", "--json"], cwd=ROOT,
+                            capture_output=True, text=True, timeout=300)
+    assert status.returncode == 0, status.stderr[-2000:]
+    stale = json.loads(status.stdout or "{}")
+    assert not stale, f"{len(stale)} stage(s) not up to date (dvc status): " + "; ".join(
+        f"{name}: {changes}" for name, changes in list(stale.items())[:5])
