@@ -20,7 +20,8 @@ n_steps, v_x):
 The same comparison for every other evaluation under ``results/evaluation/<group>/<name>_<traffic>`` (the
 operating point's, the NMPC's, the trade-off's, ...), keyed by experiment and traffic under ``experiments``
 (``experiments_all_agree``, and ``moved``: the cells that do not agree, ``experiment traffic metric``); an
-evaluation that the revision does not have is listed under ``new``.
+evaluation that the revision does not have is listed under ``new``. ``counts``: evaluations compared, those
+identical in every episode, those with a metric that moved, metric cells compared and moved, and new ones.
 
 ``--after DIR`` takes "after" from another checkout's working tree instead of this one: the results that
 ``dvc repro`` regenerated there (on another machine, from nothing: ``benchmarks/pipeline_time.py --keep``'s clone)
@@ -171,6 +172,15 @@ def main() -> None:
         print(f"{experiment:55s} {traffic:5s} identical {comparison['identical_episodes']:4d}/"
               f"{comparison['episodes_paired']}{'  MOVED' if moved else ''}")
     result["experiments_all_agree"] = not result["moved"]
+    compared = [row for level in result["experiments"].values() for row in level.values()]
+    result["counts"] = {
+        "evaluations": len(compared),
+        "evaluations_identical": sum(row["identical_episodes"] == row["episodes_paired"] for row in compared),
+        "evaluations_moved": len({" ".join(cell.split()[:2]) for cell in result["moved"]}),
+        "metric_cells": sum(len(row["cells"]) for row in compared),
+        "metric_cells_moved": len(result["moved"]),
+        "new": len(result["new"]),
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     temporary = args.out.with_name(args.out.name + ".tmp")
     temporary.write_text(json.dumps(result, indent=1) + "\n")

@@ -72,3 +72,5 @@ def test_after_takes_the_evaluations_of_another_checkout(tmp_path, monkeypatch):
     assert result["after"]["path"] == str(tmp_path) and result["after"]["commit"] is None  # not a checkout
     assert result["moved"] == ["table/ltv_mpc dense mean_vx"] and not result["all_agree"]
     assert result["traffic"]["light"]["srmpc"]["identical_episodes"] == 1000
+    assert result["counts"] == {"evaluations": 14, "evaluations_identical": 13, "evaluations_moved": 1,
+                                "metric_cells": 56, "metric_cells_moved": 1, "new": 0}
