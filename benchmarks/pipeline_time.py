@@ -622,10 +622,11 @@ def main() -> None:
     parser.add_argument("--keep", action="store_true", help="keep the clone after a successful run")
     parser.add_argument("--output", type=Path, default=None,
                         help="default: <source>/results/benchmarks/pipeline.json")
-    parser.add_argument("--resume", action="store_true",
-                        help="continue the cut run in --workdir (its clone and pipeline_state.json)")
-    parser.add_argument("--report", action="store_true",
-                        help="write pipeline.json again from the finished run in --workdir, running nothing")
+    again = parser.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true",
+                       help="continue the cut run in --workdir (its clone and pipeline_state.json)")
+    again.add_argument("--report", action="store_true",
+                       help="write pipeline.json again from the finished run in --workdir, running nothing")
     args = parser.parse_args()
     source = args.source.resolve()
     output = args.output or source / "results" / "benchmarks" / "pipeline.json"
