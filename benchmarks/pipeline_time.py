@@ -28,6 +28,9 @@
 
 6. ``--report --workdir DIR``: write ``pipeline.json`` again from a finished run (its state and clone), running
    nothing: for a report whose code changed after the run (a new key, the SLURM model).
+7. ``--regroup``: where the run's workdir is gone, write the keys derived from the measured stages alone
+   (``groups``, and the stage count checked against this checkout's ``dvc.lock``: ``n_stages_in_dvc_lock``,
+   ``covers_every_stage``, ``dvc_lock_commit``) into the existing ``pipeline.json``, every measured key as it was.
 
 Writes ``results/benchmarks/pipeline.json`` in the source repository, only once ``dvc repro`` has
 succeeded (an interrupted or failed run leaves the previous file as it was, and keeps its directory and
@@ -40,7 +43,7 @@ log for inspection). Keys:
 - ``groups``: the stages summed per group of ``dvc.yaml`` (``evaluate@nmpc``, ``train``, ...), most core-seconds
   first, with their shares of the whole;
 - ``n_stages``, ``n_stages_in_dvc_lock`` and ``covers_every_stage``: whether the timed stages are exactly those of
-  the clone's ``dvc.lock`` at the end;
+  the clone's ``dvc.lock`` at the end (with ``--regroup``: of the source checkout's, at ``dvc_lock_commit``);
 - the target on 2 cores (``targets_s``: 10800 s whole, issue 42's) and the measured time as a ratio to it
   (``ratio_to_target``, <= 1 meets it);
 - ``training_runs``: each training's own wall time (its ``summary.json``), and ``training_concurrency``,
@@ -627,9 +630,14 @@ def main() -> None:
                        help="continue the cut run in --workdir (its clone and pipeline_state.json)")
     again.add_argument("--report", action="store_true",
                        help="write pipeline.json again from the finished run in --workdir, running nothing")
+    again.add_argument("--regroup", action="store_true",
+                       help="write the keys derived from the measured stages into the existing pipeline.json")
     args = parser.parse_args()
     source = args.source.resolve()
     output = args.output or source / "results" / "benchmarks" / "pipeline.json"
+    if args.regroup:
+        write_json(output, regroup(json.loads(output.read_text()), source))
+        return
     if (args.resume or args.report) and args.workdir is None:
         raise SystemExit(f"pipeline_time: {'--resume' if args.resume else '--report'} needs the --workdir of the run")
     workdir = Path(tempfile.mkdtemp(prefix="srmpc-pipeline-")) if args.workdir is None else args.workdir.resolve()
@@ -675,14 +683,34 @@ def main() -> None:
         raise SystemExit(f"pipeline_time: --report: the run in {workdir} has not finished; --resume it")
 
     result = report(state.state, clone)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    temporary = output.with_name(output.name + ".tmp")
-    temporary.write_text(json.dumps(result, indent=2) + "\n")
-    os.replace(temporary, output)
+    write_json(output, result)
     print(json.dumps({k: result[k] for k in ("dvc_repro_wall_s", "training_s", "downstream_of_training_s",
                                              "ratio_to_target", "training_concurrency", "commit")}, indent=1))
     if not args.keep and args.workdir is None:
         shutil.rmtree(workdir, ignore_errors=True)
+
+
+def write_json(path: Path, result: dict) -> None:
+    """``result`` to ``path``, replaced whole (a cut leaves the previous file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(result, indent=2) + "\n")
+    os.replace(temporary, path)
+
+
+def regroup(result: dict, checkout: Path) -> dict:
+    """``result`` (a finished run's ``pipeline.json``) with the keys derived from its measured stages written
+    again: ``groups``, and the timed stages checked against ``checkout``'s ``dvc.lock`` (``n_stages_in_dvc_lock``,
+    ``covers_every_stage``, ``dvc_lock_commit``: the checkout's HEAD). Every measured key is kept as it was."""
+    lock = checkout / "dvc.lock"
+    if not readable_lock(lock):
+        raise SystemExit(f"pipeline_time: --regroup: {lock} is missing or unreadable")
+    locked_stages = set(yaml.safe_load(lock.read_text())["stages"])
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=checkout, capture_output=True, text=True).stdout.strip()
+    stages = result["stages"]
+    return {**result, "groups": stage_groups(stages), "n_stages": len(stages),
+            "n_stages_in_dvc_lock": len(locked_stages),
+            "covers_every_stage": {s["name"] for s in stages} == locked_stages, "dvc_lock_commit": head or None}
 
 
 def report(state: dict, clone: Path) -> dict:

@@ -220,6 +220,15 @@ def test_the_report_of_a_finished_run_covers_every_locked_stage_and_sums_its_gro
     assert sorted(g["group"] for g in result["groups"]) == ["evaluate", "scenario", "table", "train"]
     assert sum(g["core_s"] for g in result["groups"]) == pytest.approx(result["core_s"])
     assert sum(g["share_of_core_s"] for g in result["groups"]) == pytest.approx(1.0)
+    # --regroup: the derived keys again from the measured stages alone, against the checkout's dvc.lock
+    measured = {k: v for k, v in result.items() if k not in ("groups", "n_stages_in_dvc_lock", "covers_every_stage")}
+    again = pipeline_time.regroup(measured, project)
+    assert {k: v for k, v in again.items() if k != "dvc_lock_commit"} == result
+    fewer = pipeline_time.regroup({**measured, "stages": measured["stages"][:-1]}, project)
+    assert not fewer["covers_every_stage"] and fewer["n_stages"] == 3 and fewer["n_stages_in_dvc_lock"] == 4
+    (project / "dvc.lock").write_text("")
+    with pytest.raises(SystemExit, match="--regroup: .*dvc.lock is missing or unreadable"):
+        pipeline_time.regroup(measured, project)
 
 
 def test_stage_groups_follow_dvc_yaml():
