@@ -1,8 +1,9 @@
 """Every number printed in the README's results and in docs/results.md comes from a file under results/.
 
-The prose read is README.md's "## Results" section up to "## The two commands", without the headline
-table between ``<!-- table:begin -->`` and ``<!-- table:end -->`` (``tests/test_docs.py`` checks that one
-against ``results/table.json``), and all of docs/results.md, its tables included. Fenced code blocks,
+The prose read is README.md's "## Results" and "## The two commands" sections (up to "## Running one
+experiment"), without the headline table between ``<!-- table:begin -->`` and ``<!-- table:end -->``
+(``tests/test_docs.py`` checks that one against ``results/table.json``), all of docs/results.md, its tables
+included, and the "## Timings" section of docs/pipeline.md (the whole pipeline's measured run). Fenced code blocks,
 inline code spans and link targets are not prose; a link's text is.
 
 The prose is cut into units: a table row, or one sentence of a paragraph or bullet. ``TRACED`` holds one
@@ -15,6 +16,7 @@ settings, not by its place in a list sorted by speed). ``file.json:path`` names 
 results/ than the entry's. Then come ``|``-separated transforms, applied left to right:
 
     percent  x -> 100 x        cut  x -> 1 - x        negate  x -> -x        inv  x -> 1 / x
+    minutes  x -> x / 60       hours  x -> x / 3600   (seconds printed in minutes or hours)
 
 A printed number p with d decimals matches the value v when ``f"{v:.{d}f}"`` equals p (``−`` and ``-``
 are minus, ``+`` no sign, ``-0.000`` is ``0.000``). Tokens: ``1-8 m`` and ``96-97%`` are two numbers,
@@ -43,16 +45,24 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 README = "README.md"
 RESULTS_DOC = "docs/results.md"
+PIPELINE_DOC = "docs/pipeline.md"
 
 # ---------------------------------------------------------------------------------------------------
 # the prose
 
 
 def readme_results_prose(text: str) -> str:
-    """README.md from "## Results" up to "## The two commands", without the generated headline table."""
-    match = re.search(r"^## Results\n(.*?)^## The two commands", text, flags=re.MULTILINE | re.DOTALL)
-    assert match, "README.md: no '## Results' section ending at '## The two commands'"
+    """README.md from "## Results" up to "## Running one experiment", without the generated headline table."""
+    match = re.search(r"^## Results\n(.*?)^## Running one experiment", text, flags=re.MULTILINE | re.DOTALL)
+    assert match, "README.md: no '## Results' section ending at '## Running one experiment'"
     return re.sub(r"<!-- table:begin -->.*?<!-- table:end -->", "", match.group(1), flags=re.DOTALL)
+
+
+def pipeline_timings_prose(text: str) -> str:
+    """docs/pipeline.md's "## Timings" section, up to the next section."""
+    match = re.search(r"^## Timings\n(.*?)(?=^## )", text, flags=re.MULTILINE | re.DOTALL)
+    assert match, "docs/pipeline.md: no '## Timings' section followed by another section"
+    return match.group(1)
 
 
 def plain(markdown: str) -> str:
@@ -194,6 +204,8 @@ TRANSFORMS: dict[str, Callable[[float], float]] = {
     "cut": lambda x: 1.0 - x,
     "negate": lambda x: -x,
     "inv": lambda x: 1.0 / x,
+    "minutes": lambda x: x / 60.0,
+    "hours": lambda x: x / 3600.0,
 }
 
 
@@ -327,6 +339,15 @@ def _pair(traffic: str, ltv: tuple[float, float, float], curve: str, setting: tu
     """SRMPC ``curve`` at ``setting`` against LTV-MPC at ``ltv`` in results/tradeoff.json's dominance verdicts."""
     return (f"{traffic}.dominance[{_settings(ltv, 'ltv_mpc.settings')}]"
             f".srmpc_points[method={curve},{_settings(setting)}]")
+
+
+PIPELINE = "benchmarks/pipeline.json"
+
+
+def _group(group: str) -> tuple[str, str, str]:
+    """A stage group's row of docs/pipeline.md: its stages, wall time [min] and share of the core-seconds [%]."""
+    path = f"groups[group={group}]"
+    return f"{path}.stages", f"{path}.wall_s|minutes", f"{path}.share_of_core_s|percent"
 
 
 def _nmpc(traffic: str, path: str, planner: str = "ltv_mpc") -> str:
@@ -553,8 +574,43 @@ TRACED: tuple[Traced, ...] = (
     Traced(RESULTS_DOC, "also run 20 LTV-MPC and SRMPC episodes", definitions=("20 LTV-MPC",)),
     Traced(RESULTS_DOC, "overtakes a slower leader within", definitions=("30 s",)),
     Traced(RESULTS_DOC, "frames per second", definitions=("15 frames",)),
+    # docs/pipeline.md, "## Timings": the whole pipeline's measured run
+    Traced(PIPELINE_DOC, "every one of its", PIPELINE,
+           ("n_stages", "dvc_repro_wall_s|minutes", "dvc_repro_wall_s|hours", "setup_s", "n_stages",
+            "n_stages_in_dvc_lock"), ("2-core", "commit 5b35ceb")),
+    Traced(PIPELINE_DOC, "The stages used", PIPELINE, ("core_s", "core_s|hours")),
+    Traced(PIPELINE_DOC, "That is ", PIPELINE, ("ratio_to_target.dvc_repro_wall_s", "targets_s.dvc_repro_wall_s|hours")),
+    Traced(PIPELINE_DOC, "Training took", PIPELINE, ("training_s|minutes", "training_concurrency",
+                                                     "core_s_by_kind.training", "downstream_of_training_s|minutes")),
+    Traced(PIPELINE_DOC, "| NMPC evaluations |", PIPELINE, _group("evaluate@nmpc")),
+    Traced(PIPELINE_DOC, "| trade-off sweep evaluations |", PIPELINE, _group("evaluate@tradeoff")),
+    Traced(PIPELINE_DOC, "| SRMPC variants' evaluations |", PIPELINE, _group("evaluate@variants")),
+    Traced(PIPELINE_DOC, "| training PPO-L-SI and PPO |", PIPELINE, _group("train")),
+    Traced(PIPELINE_DOC, "| training PPO-L-RSS |", PIPELINE, _group("train_rss")),
+    Traced(PIPELINE_DOC, "| RSS evaluations |", PIPELINE, _group("evaluate@rss")),
+    Traced(PIPELINE_DOC, "| operating point evaluations |", PIPELINE, _group("evaluate@operating_point")),
+    Traced(PIPELINE_DOC, "| cross-checks (highway-env, its resets) |", PIPELINE, _group("evaluate@crosscheck")),
+    Traced(PIPELINE_DOC, "| training Stable-Baselines3's PPO |", PIPELINE, _group("train_sb3")),
+    Traced(PIPELINE_DOC, "| the table's evaluations |", PIPELINE, _group("evaluate@table")),
+    Traced(PIPELINE_DOC, "| training the multiplier ablation |", PIPELINE, _group("train_multiplier_ablation")),
+    Traced(PIPELINE_DOC, "| confirmation on fresh seeds |", PIPELINE, _group("evaluate@confirmation")),
+    Traced(PIPELINE_DOC, "most evaluations run", definitions=("1000 episodes", "400 planner")),
+    Traced(PIPELINE_DOC, "What would close the 3 h", definitions=("3 h", "1 ms")),
+    Traced(PIPELINE_DOC, "an 8-core workstation", PIPELINE, ("projections.workstation_8_cores.dvc_repro_wall_s|minutes",),
+           ("8-core", "8.5 s")),
+    Traced(PIPELINE_DOC, "On a SLURM cluster of", PIPELINE,
+           ("projections.slurm_64_cores.cores", "projections.slurm_64_cores.shard_episodes",
+            "projections.slurm_64_cores.job_overhead_s", "projections.slurm_64_cores.jobs",
+            "projections.slurm_64_cores.wall_s|minutes", "projections.slurm_64_cores.ratio_to_target",
+            "projections.slurm_64_cores.target_s|minutes", "projections.slurm_64_cores.cores",
+            "projections.slurm_64_cores.lower_bound_core_s_over_cores|minutes")),
+    Traced(PIPELINE_DOC, "Of the 372 outputs", PIPELINE, ("outputs.compared", "outputs.same_md5_as_commit")),
+    # README, "## The two commands"
+    Traced(README, "Both need only", definitions=("(3.11)",)),
+    Traced(README, "From nothing on 2 cores", PIPELINE,
+           ("n_stages", "dvc_repro_wall_s|hours", "ratio_to_target.dvc_repro_wall_s", "targets_s.dvc_repro_wall_s|hours",
+            "groups[group=evaluate@nmpc].share_of_core_s|percent"), ("2 cores", "commit 5b35ceb", "127.0.0.1:5000")),
 )
-
 
 # ---------------------------------------------------------------------------------------------------
 # the checker
@@ -617,21 +673,23 @@ def _short(unit: str, width: int = 90) -> str:
 
 def prose_of(doc: str) -> str:
     text = (ROOT / doc).read_text()
-    return readme_results_prose(text) if doc == README else text
+    if doc == README:
+        return readme_results_prose(text)
+    return pipeline_timings_prose(text) if doc == PIPELINE_DOC else text
 
 
 # ---------------------------------------------------------------------------------------------------
 # the tests
 
 
-@pytest.mark.parametrize("doc", [README, RESULTS_DOC])
+@pytest.mark.parametrize("doc", [README, RESULTS_DOC, PIPELINE_DOC])
 def test_every_number_is_traced_to_a_result_file(doc):
     problems = untraced_problems(doc, prose_of(doc), TRACED)
     assert not problems, f"{len(problems)} number(s) of {doc} not traced to results/:\n" + "\n".join(problems)
 
 
 def test_every_entry_names_a_doc_read_here():
-    assert {entry.doc for entry in TRACED} <= {README, RESULTS_DOC}
+    assert {entry.doc for entry in TRACED} <= {README, RESULTS_DOC, PIPELINE_DOC}
     assert all(entry.file is None or (RESULTS / entry.file).is_file() for entry in TRACED)
 
 
