@@ -26,7 +26,7 @@ to one core, numba on one thread, after a warm-up solve.
   NMPC again, so that both compared solves see the same machine load and warm caches (the timed solve above
   follows IPOPT's solves): converged plans, SQP iterations, interior-point iterations per QP and per solve, and
   time, per guess (``qp_warm_start_vs_cold``).
-- The stall test (``NmpcSettings.stall_iterations`` = ``STALL_ITERATIONS``): after the cold solve, the
+- The stall test (``NmpcSettings.stall_iterations`` = ``STALL_ITERATIONS``, the default): after the cold solve, the
   warm-started NMPC with the stall test solves it, right before the repeated warm solve without it, both timed
   with warm caches: converged plans (and whether each is the plan without the test: same status, iterations and
   objective, hence IPOPT's certificate), statuses, SQP iterations of all solves, mean, median and p99 time, per

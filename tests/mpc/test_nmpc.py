@@ -138,11 +138,12 @@ def test_nmpc_agrees_with_ipopt_from_the_same_guess(states, solver):
 
 @pytest.mark.parametrize("guess", ["rollout", "cv"])
 def test_warm_started_subproblems_converge_as_the_cold(states, guess):
-    """QPs after the first warm-started (``qp_warm_start``) converge to the same tolerance as cold-started ones (the
-    default), to the same plan, in fewer interior-point iterations after the first QP (which starts cold either way)."""
-    solver = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True))
-    cold = NmpcSolver(OcpConfig())
-    assert not cold.settings.qp_warm_start
+    """QPs after the first warm-started (``qp_warm_start``, the default) converge to the same tolerance as
+    cold-started ones, to the same plan, in fewer interior-point iterations after the first QP (which starts cold either
+    way)."""
+    solver = NmpcSolver(OcpConfig())
+    assert solver.settings.qp_warm_start
+    cold = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=False))
     warm_later, cold_later = 0, 0
     for i in range(states["ego"].shape[0]):
         step = stored_step(states, i, guess)
@@ -173,8 +174,9 @@ def test_bad_warm_start_setting_is_one_line(field, value, message):
 def test_stall_test_converges_as_without(states, guess):
     """With the stall test on (``stall_iterations``), every stored state converges to the same tolerance, through the
     same iterates, to the same plan as without it (it ends only solves that are not converging)."""
-    with_test = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True, stall_iterations=3))
-    without = NmpcSolver(OcpConfig(), NmpcSettings(qp_warm_start=True))
+    with_test = NmpcSolver(OcpConfig())
+    assert with_test.settings.stall_iterations == 3
+    without = NmpcSolver(OcpConfig(), NmpcSettings(stall_iterations=0))
     for i in range(states["ego"].shape[0]):
         step = stored_step(states, i, guess)
         result, reference = with_test.solve(step), without.solve(step)
@@ -190,7 +192,7 @@ def test_stall_test_stops_a_crawling_solve(states):
     """An over-strict Armijo fraction (0.99) makes the SQP crawl with accepted steps alpha <= 1/16 to
     ``max_iterations``, as the benchmark's unconverged solves do; with K = 3 the solve stops after 3 such steps,
     status ``stalled``, through the same iterates."""
-    crawling = NmpcSettings(qp_warm_start=True, armijo=0.99, max_iterations=8)
+    crawling = NmpcSettings(armijo=0.99, max_iterations=8, stall_iterations=0)
     without = NmpcSolver(OcpConfig(), crawling)
     stalling = NmpcSolver(OcpConfig(), dataclasses.replace(crawling, stall_iterations=3))
     for i in (0, 2):

@@ -67,8 +67,7 @@ SQP (Gauss-Newton Hessian, l1 merit line search):
    recorded states (``benchmarks/nmpc_initial_guess.py``) m = 5 took the median iterations from
    16 / 11 / 11 to 14 / 8 / 8 (constant velocity / shifted previous / rollout guess) and the
    unconverged solves from 35 to 26 of 900; m = 10 did no better.
-5. **Stall test** (``stall_iterations`` K > 0; off by default, K = 0, until the published NMPC evaluations are
-   regenerated with it, as ``qp_warm_start``). After K consecutive line searches that each accepted a step length
+5. **Stall test** (``stall_iterations`` K > 0, K = 3 by default; 0 turns it off). After K consecutive line searches that each accepted a step length
    alpha <= ``stall_step_length`` the solve stops, status ``stalled`` (not converged: the controller falls back as
    for any other unconverged solve). The convergence test is unchanged, so every converged plan is one the solve
    without the test also returns, from the same iterates; the test only ends earlier solves that are not converging.
@@ -195,16 +194,14 @@ class NmpcSettings:
             (dimensionless, ellipse-norm units; module doc).
         anderson_depth: m, the most past steps Anderson acceleration combines (0: off; module doc).
         qp_warm_start: start each QP after the first from the current iterate and the previous QP's multipliers
-            (module doc, step 1); False: every QP starts cold. Off by default until the published NMPC
-            evaluations are regenerated with it (their closed loops were run with cold QPs; the next full
-            ``dvc repro`` turns it on): ``benchmarks/nmpc_initial_guess.py`` measures both.
+            (module doc, step 1; the default); False: every QP starts cold, as in the revisions before it:
+            ``benchmarks/nmpc_initial_guess.py`` measures both.
         qp_warm_start_iterations: interior-point iterations a warm-started QP may take before it is solved again
             from the cold start (the safeguard; at most ``RICCATI_IPM_MAX_ITERATIONS``).
         stall_iterations: K, the solve stops (status ``stalled``, not converged) after K consecutive line searches
             that accepted a step length alpha <= ``stall_step_length`` (module doc, stall test); 0: off, the solve runs
-            to ``max_iterations``. Off by default until the published NMPC evaluations are regenerated with it (as
-            ``qp_warm_start``; the next full ``dvc repro`` turns both on): ``benchmarks/nmpc_initial_guess.py``
-            measures it paired with the solve without it (``stall_test_vs_without``).
+            to ``max_iterations``. ``benchmarks/nmpc_initial_guess.py`` measures K = 3 (the default) paired with the
+            solve without it (``stall_test_vs_without``).
         stall_step_length: largest accepted step length alpha that counts toward the stall test (dimensionless,
             in (0, 1)).
     """
@@ -220,9 +217,9 @@ class NmpcSettings:
     qp_tolerance: float = 1e-7
     screening_norm: float = 3.0
     anderson_depth: int = 5
-    qp_warm_start: bool = False
+    qp_warm_start: bool = True
     qp_warm_start_iterations: int = 15
-    stall_iterations: int = 0
+    stall_iterations: int = 3
     stall_step_length: float = 0.0625
 
     def __post_init__(self) -> None:
