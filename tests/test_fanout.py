@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 
 from srmpc.config.compose import ConfigError, compose_config, to_objects
 from srmpc.episode_loop import evaluate
@@ -145,15 +146,17 @@ def test_a_failed_slurm_job_is_one_line_with_its_log_after_the_rows_before_it(tm
 @needs_slurm
 def test_a_slurm_shard_signalled_before_its_time_limit_is_requeued_and_resumes(tmp_path):
     """``scancel -s USR2``: submitit's time-limit signal. The shard checkpoints, is requeued, and its second run
-    resumes after the rows the first wrote; the evaluation's rows are the local run's."""
-    config = _config("lane_keeping", 30)
+    resumes after the rows the first wrote; the evaluation's rows are the local run's. The shard's 300 episodes take
+    seconds, so the signal, sent once 3 rows are written, reaches it mid-shard (30 took under 2 s once the kernels
+    were cached: the job had finished first)."""
+    config = _config("lane_keeping", 300)
     run_evaluation(config, "same\n", tmp_path / "local", Run(None), progress=False)
     environment = {**os.environ, "SRMPC_FANOUT": str(tmp_path / "fanout.yaml"), "TQDM_DISABLE": "1"}
-    (tmp_path / "fanout.yaml").write_text(f"executor: slurm\npartition: cpu\nshard_episodes: 30\nmem_gb: 2\n"
+    (tmp_path / "fanout.yaml").write_text(f"executor: slurm\npartition: cpu\nshard_episodes: 300\nmem_gb: 2\n"
                                           f"timeout_min: 10\nwork_dir: {tmp_path / 'work'}\n")
     out = tmp_path / "slurm"
     process = subprocess.Popen(
-        [sys.executable, "-m", "srmpc", "+experiment=smoke", "controller=lane_keeping", "evaluation.episodes=30",
+        [sys.executable, "-m", "srmpc", "+experiment=smoke", "controller=lane_keeping", "evaluation.episodes=300",
          "evaluation.seed=3", "tracking.enabled=false", f"evaluation.output_dir={out}",
          f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, env=environment, stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True)
@@ -223,3 +226,37 @@ def test_the_cli_without_sbatch_is_one_line(tmp_path):
     assert result.stderr.strip() == (f"srmpc: config error: SRMPC_FANOUT={tmp_path / 'fanout.yaml'}: executor: slurm, "
                                      "but there is no sbatch on PATH")
     assert not (tmp_path / "out" / EPISODES_NAME).exists()
+
+
+@pytest.mark.slow
+@needs_slurm
+def test_dvc_repro_of_published_stages_through_slurm_locks_the_committed_hashes(tmp_path):
+    """Two stages of dvc.yaml (lane keeping and LTV-MPC, light traffic: 1000 episodes each, in shards of 250, each
+    a SLURM job), rerun by ``dvc repro`` in a clone with their outputs deleted, write into ``dvc.lock`` the
+    hashes of the committed outputs (made by local processes): the fan-out is outside the stages' identity."""
+    clone = tmp_path / "clone"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True, timeout=300)
+    stages = {"evaluate@table/lane_keeping-light": "results/evaluation/table/lane_keeping_light",
+              "evaluate@table/ltv_mpc-light": "results/evaluation/table/ltv_mpc_light"}
+    committed = _locked_outputs(clone / "dvc.lock", stages)
+    bin_dir = Path(sys.executable).parent
+    environment = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "TQDM_DISABLE": "1",
+                   "SRMPC_FANOUT": str(tmp_path / "fanout.yaml")}
+    (tmp_path / "fanout.yaml").write_text(f"executor: slurm\npartition: cpu\nmem_gb: 2\ntimeout_min: 20\n"
+                                          f"shard_episodes: 250\nwork_dir: {tmp_path / 'work'}\n")
+    subprocess.run([sys.executable, "-m", "srmpc.precompile"], cwd=clone, env=environment, check=True,
+                   capture_output=True, timeout=1200)  # one compile, not one per shard (docs/scaling.md)
+    for folder in stages.values():
+        shutil.rmtree(clone / folder)
+    for stage in stages:
+        result = subprocess.run([str(bin_dir / "dvc"), "repro", "-s", stage], cwd=clone, env=environment,
+                                capture_output=True, text=True, timeout=1800)
+        assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert len(list((tmp_path / "work").rglob("*_submission.sh"))) >= 8  # the shards ran as SLURM jobs
+    assert _locked_outputs(clone / "dvc.lock", stages) == committed
+
+
+def _locked_outputs(lock: Path, stages: dict[str, str]) -> dict[str, str]:
+    """Each output path of ``stages`` in ``lock`` and its MD5."""
+    locked = yaml.safe_load(lock.read_text())["stages"]
+    return {out["path"]: out["md5"] for stage in stages for out in locked[stage]["outs"]}
