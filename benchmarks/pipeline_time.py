@@ -705,12 +705,17 @@ def regroup(result: dict, checkout: Path) -> dict:
     lock = checkout / "dvc.lock"
     if not readable_lock(lock):
         raise SystemExit(f"pipeline_time: --regroup: {lock} is missing or unreadable")
-    locked_stages = set(yaml.safe_load(lock.read_text())["stages"])
     head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=checkout, capture_output=True, text=True).stdout.strip()
-    stages = result["stages"]
-    return {**result, "groups": stage_groups(stages), "n_stages": len(stages),
-            "n_stages_in_dvc_lock": len(locked_stages),
-            "covers_every_stage": {s["name"] for s in stages} == locked_stages, "dvc_lock_commit": head or None}
+    return {**result, "groups": stage_groups(result["stages"]), **stage_coverage(result["stages"], lock),
+            "dvc_lock_commit": head or None}
+
+
+def stage_coverage(stages: list[dict], lock: Path) -> dict:
+    """``n_stages``, ``n_stages_in_dvc_lock`` and ``covers_every_stage``: whether the timed ``stages`` are exactly
+    the stages of ``lock`` (a ``dvc.lock``)."""
+    locked_stages = set(yaml.safe_load(lock.read_text())["stages"])
+    return {"n_stages": len(stages), "n_stages_in_dvc_lock": len(locked_stages),
+            "covers_every_stage": {s["name"] for s in stages} == locked_stages}
 
 
 def report(state: dict, clone: Path) -> dict:
@@ -728,7 +733,6 @@ def report(state: dict, clone: Path) -> dict:
                        for kind in ("training", "downstream", "other")} if measured_cpu else None)
     runs = training_runs(clone, clone / "dvc.yaml", training_stages)
     regenerated = locked_outputs(clone / "dvc.lock")
-    locked_stages = set(yaml.safe_load((clone / "dvc.lock").read_text())["stages"])
     differing = sorted(p for p, md5 in regenerated.items() if md5 is not None and committed_outputs.get(p) != md5)
     measured = {"dvc_repro_wall_s": wall, "downstream_of_training_s": sums["downstream"]}
     samples = [x for p in state["parts"] for x in p["load_samples"]] or [os.getloadavg()[0]]
@@ -751,9 +755,7 @@ def report(state: dict, clone: Path) -> dict:
         "projections": projected,
         "parts": [{"wall_s": p["wall_s"], "core_s": p.get("core_s"), "stages_run": len(p["stages"]),
                    "finished": p["finished"]} for p in state["parts"]],
-        "n_stages": len(stages),
-        "n_stages_in_dvc_lock": len(locked_stages),
-        "covers_every_stage": {s["name"] for s in stages} == locked_stages,
+        **stage_coverage(stages, clone / "dvc.lock"),
         "training_runs": runs,
         "training_concurrency": (sum(r["wall_s"] for r in runs) / sums["training"]) if sums["training"] else None,
         "outputs": {"compared": sum(md5 is not None for md5 in regenerated.values()),
