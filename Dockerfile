@@ -1,5 +1,5 @@
-# Installs srmpc with its test extras and runs the default test suite.
-# Note: on x86_64 Linux, PyPI's torch==2.13.0 is a CUDA build (several GB).
+# Installs srmpc from requirements.lock (exact versions, hashes checked; torch's CPU build) and runs the default
+# test suite.
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -13,9 +13,10 @@ RUN apt-get update \
     && rm -rf /var/lib/apt/lists/*
 
 WORKDIR /srmpc
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md LICENSE requirements.lock ./
 COPY srmpc ./srmpc
-RUN python -m pip install -e '.[dev]'
+RUN python -m pip install --require-hashes --no-deps -r requirements.lock \
+    && python -m pip install --no-deps --no-build-isolation -e .
 COPY . .
 
 CMD ["python", "-m", "pytest"]

@@ -5,15 +5,28 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export PATH := $(abspath $(BIN)):$(PATH)
 
-.PHONY: install reproduce videos test test-slow lint ui bench clean
+.PHONY: install lock reproduce videos test test-slow lint ui bench clean
 
-$(STAMP): pyproject.toml
+## Exactly the versions of requirements.lock, every file checked against its hash, then srmpc itself, resolving
+## nothing (`--no-deps`; `--no-build-isolation`: built with the locked setuptools). `--retries 0`: an index that
+## cannot be reached (PyTorch's, offline) is skipped at once instead of retried for every package.
+$(STAMP): pyproject.toml requirements.lock
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet --retries 0 --require-hashes --no-deps -r requirements.lock
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
 install: $(STAMP)
+
+## Rewrite requirements.lock from pyproject.toml: pip's own resolver, ignoring what is installed, reports every package
+## `pip install -e '.[dev,nmpc]'` would install (version, file hash); .ci/lock.py writes them. Then `make install`.
+LOCK_RESOLVE := pip install --dry-run --ignore-installed --quiet --extra-index-url https://download.pytorch.org/whl/cpu
+lock:
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	report=$$(mktemp) && trap 'rm -f "$$report"' EXIT \
+	  && $(BIN)/python -m $(LOCK_RESOLVE) --retries 0 --report "$$report" -e '.[dev,nmpc]' \
+	  && $(BIN)/python .ci/lock.py "$$report" requirements.lock "$(LOCK_RESOLVE) --report REPORT -e '.[dev,nmpc]'"
 
 ## The main job: regenerate every result (DVC pipeline: spawn statistics, training, evaluation, table,
 ## figures, videos), then the smoke experiment; always ends by printing results/table.md.
@@ -51,10 +64,12 @@ lint: install
 
 ## MLflow UI on http://127.0.0.1:5000 over the local SQLite store. The printed URL opens the runs table on
 ## the results: one row per method and traffic of results/table.json with J_c, rho_c, J_r, n_steps, v_x
-## (saved view "Results table"; before any `make reproduce`, every run with those columns).
+## (saved view "Results table"; before any `make reproduce`, every run with those columns). Without MLflow's job
+## runner (MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false): its 8 processes run GenAI jobs (LLM judges, prompt optimization).
 ui: install
 	@echo "Results: $$(python -m pipelines.mlflow_parent_run url 2>/dev/null)"
-	mlflow ui --backend-store-uri sqlite:///mlflow.db --default-artifact-root ./mlruns --host 127.0.0.1 --port 5000
+	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false \
+	  mlflow ui --backend-store-uri sqlite:///mlflow.db --default-artifact-root ./mlruns --host 127.0.0.1 --port 5000
 
 clean:
 	rm -rf $(VENV) .pytest_cache outputs multirun

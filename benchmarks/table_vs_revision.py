@@ -16,6 +16,7 @@ n_steps, v_x):
 - ``identical_episodes``: how many episodes gave exactly the same row (all four metrics).
 
 ``all_agree`` is true when every cell of the table agrees. Nothing here is a test: a cell that moves is a finding.
+The pairing is ``pipelines/revision_pairing.py``'s, which ``python -m pipelines.reproduction_check`` shares.
 
 The same comparison for every other evaluation under ``results/evaluation/<group>/<name>_<traffic>`` (the
 operating point's, the NMPC's, the trade-off's, ...), keyed by experiment and traffic under ``experiments``
@@ -41,20 +42,17 @@ from pathlib import Path
 
 import pandas as pd
 
-from srmpc.confidence_intervals import (
-    BOOTSTRAP_RESAMPLES,
-    BOOTSTRAP_SEED,
-    PAIRED_METRICS,
-    paired_differences,
-    table_metrics_with_intervals,
-)
-
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run as a script, this folder is first on the path: the repository's pipelines too
     sys.path.insert(0, str(ROOT))
 from pipelines.reporting import EXPERIMENTS, METHODS, run_of  # noqa: E402  (the table's rows, their experiments)
+from pipelines.revision_pairing import (  # noqa: E402  (the pairing, shared with pipelines/reproduction_check.py)
+    TRAFFIC,
+    compare_cells,
+    evaluation_cells,
+    show_at_revision,
+)
 
-TRAFFIC = ("light", "dense")
 OUTPUT = ROOT / "results" / "benchmarks" / "table_vs_revision.json"
 
 
@@ -62,71 +60,15 @@ def episodes_path(method: str, traffic: str) -> str:
     return (run_of(EXPERIMENTS[method], traffic) / "episodes.csv").as_posix()
 
 
-def path_before_experiments(path: str) -> str:
-    """Where ``path`` (results/evaluation/table/<method>_<traffic>/...) lived before the evaluations were named by
-    their experiments: the table's under results/evaluation/twin/, the confirmation's where they are now."""
-    return path.replace("results/evaluation/table/", "results/evaluation/twin/")
-
-
-def evaluation_cells(root: Path = ROOT) -> list[tuple[str, str, str]]:
-    """(experiment, traffic, episodes path) of every evaluation in the working tree, sorted."""
-    cells = []
-    for path in sorted((root / "results" / "evaluation").glob("*/*/episodes.csv")):
-        name, _, traffic = path.parent.name.rpartition("_")
-        if traffic in TRAFFIC:
-            cells.append((f"{path.parent.parent.name}/{name}", traffic, path.relative_to(root).as_posix()))
-    return cells
-
-
-def _show(revision: str, path: str) -> subprocess.CompletedProcess:
-    shown = subprocess.run(["git", "show", f"{revision}:{path}"], cwd=ROOT, capture_output=True, text=True)
-    if shown.returncode != 0:  # a revision before the experiment folders
-        shown = subprocess.run(["git", "show", f"{revision}:{path_before_experiments(path)}"], cwd=ROOT,
-                               capture_output=True, text=True)
-    return shown
-
-
 def at_revision(revision: str, path: str, missing_ok: bool = False) -> pd.DataFrame | None:
     """``path``'s episodes at ``revision``; where it has none, None with ``missing_ok``, else a one-line exit."""
-    shown = _show(revision, path)
+    shown = show_at_revision(ROOT, revision, path)
     if shown.returncode != 0:
         if missing_ok:
             return None
         raise SystemExit(f"table_vs_revision: --revision {revision}: no {path} there "
                          f"({shown.stderr.strip().splitlines()[-1] if shown.stderr.strip() else 'git show failed'})")
     return pd.read_csv(io.StringIO(shown.stdout))
-
-
-INTERVAL_SLACK = 1e-12
-"""Relative slack on "lies in the interval": Wilson's lower bound for 0 events comes out as ~2e-19, not 0."""
-
-
-def _inside(value: float, low: float, high: float) -> bool:
-    slack = INTERVAL_SLACK * (1.0 + abs(value))
-    return low - slack <= value <= high + slack
-
-
-def compare_cells(before: pd.DataFrame, after: pd.DataFrame) -> dict:
-    """The four paired metrics of one table row: before, after, paired difference, agreement."""
-    row_before = table_metrics_with_intervals(before, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
-    row_after = table_metrics_with_intervals(after, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
-    paired = paired_differences(after, before, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
-    columns = list(PAIRED_METRICS)
-    merged = after.merge(before, on="seed", suffixes=("_a", "_b"))
-    identical = int((merged[[f"{c}_a" for c in columns]].to_numpy()
-                     == merged[[f"{c}_b" for c in columns]].to_numpy()).all(axis=1).sum())
-    cells = {}
-    for metric in PAIRED_METRICS.values():
-        low, high = paired[f"{metric}_ci95"]
-        b, a = row_before[metric], row_after[metric]
-        b_low, b_high = row_before[f"{metric}_ci95"]
-        a_low, a_high = row_after[f"{metric}_ci95"]
-        cells[metric] = {
-            "before": b, "before_ci95": [b_low, b_high], "after": a, "after_ci95": [a_low, a_high],
-            "paired": paired[metric], "paired_ci95": [low, high],
-            "agrees": bool(low <= 0.0 <= high and _inside(a, b_low, b_high) and _inside(b, a_low, a_high)),
-        }
-    return {"episodes_paired": paired["episodes"], "identical_episodes": identical, "cells": cells}
 
 
 def main() -> None:

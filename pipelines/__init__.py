@@ -3,3 +3,5 @@
 Each module runs from the repository root as ``python -m pipelines.<module>`` (dvc.yaml, Makefile); what the
 reports share (the table's methods, the paper's values, a method's row) is :mod:`pipelines.reporting`.
 """
+
+import srmpc  # noqa: E402, F401  (first: applies SRMPC_NUMERICS before any numeric library loads)

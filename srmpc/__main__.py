@@ -23,6 +23,7 @@ next start of a run of the same name marks the dead process's run FAILED (srmpc.
 
 from __future__ import annotations
 
+import json
 import signal
 import sys
 from pathlib import Path
@@ -34,6 +35,8 @@ from omegaconf import DictConfig, OmegaConf
 from srmpc.config.compose import ConfigError, compose_config, recorded_yaml, to_objects, with_experiment_name
 from srmpc.config.schema import Config, Stage, controller_label, register_schema
 from srmpc.errors import FileFault, JobFailed, describe_file_fault
+from srmpc.numerics import SUMMARY_KEY, environment_record, mlflow_tags
+from srmpc.output_folder import SUMMARY_NAME, atomic_write_text
 from srmpc.output_lock import OutputDirectoryBusy, OutputDirectoryUnwritable, exclusive_output_dir
 from srmpc.tracking import TrackingStoreUnusable, check_tracking_store, tracked_run
 
@@ -102,19 +105,34 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
         OmegaConf.to_container(cfg, resolve=True), config_yaml,
     ) as active_run:
         active_run.set_tags({"output_dir": _shown_path(stage_dir)})  # pipelines/mlflow_import.py keys runs by it
+        active_run.set_tags(mlflow_tags(environment_record()))
         if config.stage is Stage.evaluate:
             from srmpc.stages.evaluate import run_evaluation
 
-            return run_evaluation(config, config_yaml, stage_dir, active_run, fanout=fanout)
-        if config.stage is Stage.train:
+            summary = run_evaluation(config, config_yaml, stage_dir, active_run, fanout=fanout)
+        elif config.stage is Stage.train:
             from srmpc.stages.train import run_training
 
-            return run_training(config, OmegaConf.to_container(cfg, resolve=True), active_run)
-        if config.stage is Stage.train_sb3:
+            summary = run_training(config, OmegaConf.to_container(cfg, resolve=True), active_run)
+        elif config.stage is Stage.train_sb3:
             from srmpc.stages.train_sb3 import run_sb3_training
 
-            return run_sb3_training(config, OmegaConf.to_container(cfg, resolve=True), active_run)
-    raise ConfigError(f"stage={config.stage.value}: no runner")
+            summary = run_sb3_training(config, OmegaConf.to_container(cfg, resolve=True), active_run)
+        else:
+            raise ConfigError(f"stage={config.stage.value}: no runner")
+        return record_environment(summary, stage_dir / SUMMARY_NAME, active_run)
+
+
+def record_environment(summary: dict, summary_path: Path, active_run) -> dict:
+    """``summary`` with the process's numeric environment (srmpc.numerics: the pin, the CPU, the libraries'
+    versions) under its own key, written back to the stage's ``summary.json`` and logged again. The stage
+    wrote the file without it: the environment describes the machine, not the result, and comparisons of
+    results (golden hashes, pipelines.reproduction_check) leave the key out."""
+    record = environment_record()
+    summary = {**summary, SUMMARY_KEY: record}
+    atomic_write_text(summary_path, json.dumps(summary, indent=2) + "\n")
+    active_run.log_artifact(summary_path)
+    return summary
 
 
 register_schema()

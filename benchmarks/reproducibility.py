@@ -1,0 +1,64 @@
+"""Records this machine's CPU where the golden-hash test passes: ``results/benchmarks/reproducibility.json``.
+
+    python benchmarks/reproducibility.py [--slow]
+
+Runs ``tests/test_reproducibility.py`` (the pinned numeric environment's golden hashes of a short training of
+every agent and a short evaluation of every controller, and the instruction-set caps; ``--slow`` adds the slow caps)
+on this machine, and, if it passed, adds or updates the entry of this CPU model under ``golden_hash_test``:
+model, vendor, family/model/stepping, its flags, the commit, the tests that ran and passed, the date. An entry is
+keyed by (model name, flags): the same model name with other flags (another hypervisor's CPU mask) is another
+entry. A failing run records nothing and exits 1: see the test's docstring for what to do.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from srmpc.numerics import cpuinfo
+
+ROOT = Path(__file__).resolve().parents[1]
+OUTPUT = ROOT / "results" / "benchmarks" / "reproducibility.json"
+TEST = "tests/test_reproducibility.py"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--slow", action="store_true", help="also the slow caps (NUMBA_CPU_NAME, ...)")
+    parser.add_argument("--out", type=Path, default=OUTPUT)
+    args = parser.parse_args()
+    command = [sys.executable, "-m", "pytest", TEST, "-p", "no:xdist", "-q", "-p", "no:cacheprovider"]
+    if args.slow:
+        command += ["-m", ""]
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+    print(done.stdout[-3000:], done.stderr[-2000:], sep="\n")
+    summary = re.search(r"(\d+) passed", done.stdout)
+    if done.returncode != 0 or summary is None:
+        sys.exit(f"{TEST} did not pass on this CPU: nothing recorded")
+    info = cpuinfo()
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                                capture_output=True, text=True).stdout.strip())
+    entry = {
+        "model": info.get("model name"), "vendor": info.get("vendor_id"),
+        "family_model_stepping": [info.get("cpu family"), info.get("model"), info.get("stepping")],
+        "flags": sorted(info.get("flags", "").split()),
+        "commit": commit + ("+uncommitted" if dirty else ""), "tests_passed": int(summary.group(1)),
+        "slow_caps": args.slow, "date": datetime.date.today().isoformat(),
+    }
+    record = json.loads(args.out.read_text()) if args.out.exists() else {}
+    entries = [e for e in record.get("golden_hash_test", [])
+               if (e["model"], e["flags"]) != (entry["model"], entry["flags"])]
+    record["golden_hash_test"] = [*entries, entry]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(record, indent=2) + "\n")
+    print(f"recorded {entry['model']} ({entry['vendor']}) at {entry['commit'][:12]} in {args.out.relative_to(ROOT)}")
+
+
+if __name__ == "__main__":
+    main()
