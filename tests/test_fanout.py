@@ -28,6 +28,7 @@ from srmpc.fanout import (
     settings_from_environment,
     shard_ranges,
 )
+from srmpc.numerics import SUMMARY_KEY
 from srmpc.output_folder import EPISODES_NAME
 from srmpc.stages.evaluate import run_evaluation
 from srmpc.tracking import Run
@@ -233,7 +234,8 @@ def test_the_cli_without_sbatch_is_one_line(tmp_path):
 def test_dvc_repro_of_published_stages_through_slurm_locks_the_committed_hashes(tmp_path):
     """Two stages of dvc.yaml (lane keeping and LTV-MPC, light traffic: 1000 episodes each, in shards of 250, each
     a SLURM job), rerun by ``dvc repro`` in a clone with their outputs deleted, write into ``dvc.lock`` the
-    hashes of the committed outputs (made by local processes): the fan-out is outside the stages' identity."""
+    hashes of the committed outputs (made by local processes): the fan-out is outside the stages' identity. A
+    summary.json also records the machine that wrote it (``environment``): apart from that it equals the committed."""
     clone = tmp_path / "clone"
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True, timeout=300)
     stages = {"evaluate@table/lane_keeping-light": "results/evaluation/table/lane_keeping_light",
@@ -254,9 +256,14 @@ def test_dvc_repro_of_published_stages_through_slurm_locks_the_committed_hashes(
         assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert len(list((tmp_path / "work").rglob("*_submission.sh"))) >= 8  # the shards ran as SLURM jobs
     assert _locked_outputs(clone / "dvc.lock", stages) == committed
+    for folder in stages.values():
+        summary = json.loads((clone / folder / "summary.json").read_text())
+        assert summary.pop(SUMMARY_KEY)["numerics"]
+        assert summary == json.loads((ROOT / folder / "summary.json").read_text())
 
 
 def _locked_outputs(lock: Path, stages: dict[str, str]) -> dict[str, str]:
-    """Each output path of ``stages`` in ``lock`` and its MD5."""
+    """Each output path of ``stages`` in ``lock`` and its MD5, but the summaries (they record the machine)."""
     locked = yaml.safe_load(lock.read_text())["stages"]
-    return {out["path"]: out["md5"] for stage in stages for out in locked[stage]["outs"]}
+    return {out["path"]: out["md5"] for stage in stages for out in locked[stage]["outs"]
+            if not out["path"].endswith("summary.json")}
