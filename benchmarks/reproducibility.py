@@ -2,8 +2,9 @@
 
     python benchmarks/reproducibility.py [--slow]
 
-Runs ``tests/test_reproducibility.py`` (the pinned numeric environment's golden hashes of a short training of
-every agent and a short evaluation of every controller, and the instruction-set caps; ``--slow`` adds the slow caps)
+Runs ``tests/test_reproducibility.py`` and ``tests/test_isa_caps.py`` (the pinned numeric environment's golden
+hashes of a short training of every agent and a short evaluation of every controller, and the instruction-set caps;
+``--slow`` adds the slow caps)
 on this machine, and, if it passed, adds or updates the entry of this CPU model under ``golden_hash_test``:
 model, vendor, family/model/stepping, its flags, the commit, the tests that ran and passed, the date. An entry is
 keyed by (model name, flags): the same model name with other flags (another hypervisor's CPU mask) is another
@@ -24,7 +25,7 @@ from srmpc.numerics import cpuinfo
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUT = ROOT / "results" / "benchmarks" / "reproducibility.json"
-TEST = "tests/test_reproducibility.py"
+TESTS = ("tests/test_reproducibility.py", "tests/test_isa_caps.py")
 
 
 def main() -> None:
@@ -32,14 +33,14 @@ def main() -> None:
     parser.add_argument("--slow", action="store_true", help="also the slow caps (NUMBA_CPU_NAME, ...)")
     parser.add_argument("--out", type=Path, default=OUTPUT)
     args = parser.parse_args()
-    command = [sys.executable, "-m", "pytest", TEST, "-p", "no:xdist", "-q", "-p", "no:cacheprovider"]
+    command = [sys.executable, "-m", "pytest", *TESTS, "-p", "no:xdist", "-q", "-p", "no:cacheprovider"]
     if args.slow:
         command += ["-m", ""]
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
     print(done.stdout[-3000:], done.stderr[-2000:], sep="\n")
     summary = re.search(r"(\d+) passed", done.stdout)
     if done.returncode != 0 or summary is None:
-        sys.exit(f"{TEST} did not pass on this CPU: nothing recorded")
+        sys.exit(f"{' and '.join(TESTS)} did not pass on this CPU: nothing recorded")
     info = cpuinfo()
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
