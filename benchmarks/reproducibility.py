@@ -2,7 +2,7 @@
 
     python benchmarks/reproducibility.py [--slow]
 
-Runs ``tests/test_reproducibility.py`` and ``tests/test_isa_caps.py`` (the pinned numeric environment's golden
+Runs ``tests/test_golden_hashes.py`` and ``tests/test_isa_caps.py`` (the pinned numeric environment's golden
 hashes of a short training of every agent and a short evaluation of every controller, and the instruction-set caps;
 ``--slow`` adds the slow caps)
 on this machine, and, if it passed, adds or updates the entry of this CPU model under ``golden_hash_test``:
@@ -25,7 +25,7 @@ from srmpc.numerics import cpuinfo
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUT = ROOT / "results" / "benchmarks" / "reproducibility.json"
-TESTS = ("tests/test_reproducibility.py", "tests/test_isa_caps.py")
+TESTS = ("tests/test_golden_hashes.py", "tests/test_isa_caps.py")
 
 
 def main() -> None:

@@ -6,7 +6,7 @@
 A cell is a short training of one agent (PPO, PPO-L-SI, PPO-L-RSS, Stable-Baselines3's PPO; :data:`ITERATIONS`
 iterations, its ``policy.pt``) or a short evaluation of one controller (:data:`EPISODES` dense episodes of a
 published experiment with the committed policies, its ``episodes.csv``), run through ``python -m srmpc`` as a user
-would. ``tests/test_reproducibility.py`` holds their golden MD5s under ``SRMPC_NUMERICS=pinned``.
+would. ``tests/test_golden_hashes.py`` holds their golden MD5s under ``SRMPC_NUMERICS=pinned``.
 
 ``--caps`` runs :data:`CAP_CELLS` natively and pinned under every cap of :data:`CAPS` (each cap an environment
 variable that makes a library take the kernels of another CPU: AVX2 on an AVX-512 CPU, no SIMD, another OpenBLAS

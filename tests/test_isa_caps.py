@@ -1,5 +1,5 @@
 """Instruction-set caps that stand for another x86-64 CPU: pinned, none changes a byte of the golden cells; natively,
-some do (so the pinned test could fail). The golden hashes: tests/test_reproducibility.py. Every cap's effect,
+some do (so the pinned test could fail). The golden hashes: tests/test_golden_hashes.py. Every cap's effect,
 natively and pinned, on this machine: ``python -m pipelines.numerics_probe --caps`` (results/benchmarks/isa_caps.json).
 """
 
