@@ -51,6 +51,7 @@ from typing import Any
 import yaml
 
 from pipelines.reporting import EXPERIMENTS
+from srmpc.numerics import SUMMARY_KEY, mlflow_tags
 from srmpc.tracking import MLFLOW_BATCH_LIMIT, RESULTS_TABLE_TAG, flatten, run_tags
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,9 +88,12 @@ def _plain_number(value: Any) -> float | None:
 
 
 def summary_metrics(summary: dict, prefix: str = "") -> dict[str, float]:
-    """The numbers of a summary.json, nested ones as ``outer/inner``."""
+    """The numbers of a summary.json, nested ones as ``outer/inner``; not those of the run's ``environment`` record
+    (srmpc.numerics: the machine, not a result; imported as tags)."""
     metrics: dict[str, float] = {}
     for key, value in summary.items():
+        if not prefix and key == SUMMARY_KEY:
+            continue
         if isinstance(value, dict):
             metrics.update(summary_metrics(value, f"{prefix}{key}/"))
         elif (number := _plain_number(value)) is not None:
@@ -199,6 +203,9 @@ def import_result(client: Any, experiment_id: str, parent_run_id: str | None, re
     now = int(time.time() * 1000)
     summary_path = directory / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    if isinstance(summary.get(SUMMARY_KEY), dict):  # the machine that made it, as the run itself tagged it
+        for key, value in mlflow_tags(summary[SUMMARY_KEY]).items():
+            client.set_tag(run_id, key, value)
     if result["kind"] == "training":
         metrics = _training_metrics(directory / "metrics.csv", Metric)
         metrics += [Metric(f"final/{k}", v, now, 0) for k, v in summary_metrics(summary).items()]

@@ -14,7 +14,7 @@ import mlflow
 import pytest
 import yaml
 
-from pipelines.mlflow_import import IMPORT_TAG, import_results, results_of, stage_md5
+from pipelines.mlflow_import import IMPORT_TAG, import_results, results_of, stage_md5, summary_metrics
 from pipelines.reporting import EXPERIMENTS
 from srmpc.tracking import ensure_experiment
 
@@ -175,3 +175,9 @@ def test_every_row_of_the_results_table_has_its_run_under_the_tables_method(tmp_
     marked = client.search_runs([experiment_id], filter_string='tags.results_table = "true"', max_results=1000)
     assert len(marked) == len(rows) - 1 and ("light", "ppo") not in {
         (r.data.tags["traffic"], r.data.tags["method"]) for r in marked}
+
+
+def test_a_runs_environment_record_is_not_imported_as_metrics():
+    """A summary's ``environment`` (srmpc.numerics: the machine) is tags, not metrics; other nesting stays."""
+    summary = {"mean_vx": 20.5, "terminations": {"collision": 3}, "environment": {"threads": {"torch": 1}}}
+    assert summary_metrics(summary) == {"mean_vx": 20.5, "terminations/collision": 3.0}
