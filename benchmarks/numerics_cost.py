@@ -26,7 +26,6 @@ import argparse
 import hashlib
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -151,10 +150,10 @@ def main() -> None:
                     print(f"round {round_number} {task} {mode}: {result['seconds']:.2f} s", flush=True)
     gflops = {mode: matmul(mode) for mode in ("native", "pinned")}
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    from srmpc.numerics import PINNED_VARIABLES, cpu_model
+    from srmpc.numerics import PINNED_VARIABLES, cpu_summary
 
     report = {
-        "cpu": cpu_model(), "machine": platform.machine(), "commit": commit,
+        "cpu": cpu_summary(), "commit": commit,
         "affinity": sorted(os.sched_getaffinity(0)),
         "rounds": args.rounds, "training_iterations": args.iterations, "evaluation_episodes": args.episodes,
         "pin": PINNED_VARIABLES,

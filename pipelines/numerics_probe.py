@@ -95,9 +95,9 @@ PINNED = {"SRMPC_NUMERICS": "pinned"}
 NATIVE = {"SRMPC_NUMERICS": "native"}
 
 
-def run_cell(cell: str, out: Path, environment: dict[str, str], extra: tuple[str, ...] = ()) -> str:
+def run_cell(cell: str, out: Path, environment: dict[str, str], extra: tuple[str, ...] = (), workers: int = 1) -> str:
     """Run ``cell`` through ``python -m srmpc`` into ``out`` with ``environment`` added (and the ``extra``
-    overrides); its bytes' MD5 (16 digits)."""
+    overrides; an evaluation in ``workers`` processes); its bytes' MD5 (16 digits)."""
     env = {k: v for k, v in os.environ.items() if k not in CAP_VARIABLES and k != "SRMPC_PARENT_RUN_ID"}
     env.update(environment)
     folder = out / cell.replace("/", "_")
@@ -107,7 +107,7 @@ def run_cell(cell: str, out: Path, environment: dict[str, str], extra: tuple[str
         result_file = folder / "policy.pt"
     else:
         overrides = [f"+experiment={EVALUATIONS[cell]}", "scenario=dense", f"evaluation.episodes={EPISODES}",
-                     "evaluation.workers=1", f"evaluation.output_dir={folder}"]
+                     f"evaluation.workers={workers}", f"evaluation.output_dir={folder}"]
         result_file = folder / "episodes.csv"
     command = [sys.executable, "-m", "srmpc", *overrides, *extra, "tracking.enabled=false"]
     done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
@@ -147,10 +147,10 @@ def main() -> None:
                 print(f'    "{cell}": "{run_cell(cell, Path(folder), PINNED)}",', flush=True)
             return
         report = cap_matrix(Path(folder))
-    from srmpc.numerics import PINNED_VARIABLES, cpu_model
+    from srmpc.numerics import PINNED_VARIABLES, cpu_summary
 
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    report = {"cpu": cpu_model(), "commit": commit, "iterations": ITERATIONS, "episodes": EPISODES,
+    report = {"cpu": cpu_summary(), "commit": commit, "iterations": ITERATIONS, "episodes": EPISODES,
               "pin": PINNED_VARIABLES, "caps": CAPS, **report}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2) + "\n")

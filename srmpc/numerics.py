@@ -136,6 +136,16 @@ def cpu_flags() -> set[str]:
     return set(cpuinfo().get("flags", "").split())
 
 
+def cpu_summary() -> dict:
+    """What a measurement records of its CPU: model, vendor, family/model/stepping, machine, and whether it has
+    AVX2, FMA and AVX-512F."""
+    info, flags = cpuinfo(), cpu_flags()
+    return {"model": cpu_model(), "vendor": info.get("vendor_id"),
+            "family_model_stepping": [info.get("cpu family"), info.get("model"), info.get("stepping")],
+            "machine": platform.machine(),
+            **{flag: flag in flags for flag in ("avx2", "fma", "avx512f")}}
+
+
 def is_pinned(environ: dict[str, str] | None = None) -> bool:
     """Whether every pinned variable holds its pinned value."""
     environ = os.environ if environ is None else environ
@@ -197,10 +207,9 @@ def environment_record() -> dict:
     """What a run records about its numeric environment (``summary.json``'s :data:`SUMMARY_KEY`).
 
     ``numerics``: the mode; ``pinned``: the pinned variables as this process saw them (empty when native);
-    ``replaced``: the machine's own values the pin replaced; ``cpu``: model and whether it has AVX2, FMA,
-    AVX-512F; ``threads``: torch's and numba's in this process; ``libraries``: :func:`library_versions`."""
+    ``replaced``: the machine's own values the pin replaced; ``cpu``: :func:`cpu_summary`; ``threads``: torch's
+    and numba's in this process; ``libraries``: :func:`library_versions`."""
     mode = requested_mode()
-    flags = cpu_flags()
     threads = {}
     if "torch" in sys.modules:
         threads["torch"] = sys.modules["torch"].get_num_threads()
@@ -210,8 +219,7 @@ def environment_record() -> dict:
         "numerics": mode,
         "pinned": {name: os.environ.get(name) for name in PINNED_VARIABLES} if mode == PINNED else {},
         "replaced": json.loads(os.environ.get(REPLACED_VARIABLE, "{}")) if mode == PINNED else {},
-        "cpu": {"model": cpu_model(), "machine": platform.machine(),
-                "avx2": "avx2" in flags, "fma": "fma" in flags, "avx512f": "avx512f" in flags},
+        "cpu": cpu_summary(),
         "threads": threads,
         "libraries": library_versions(),
     }

@@ -16,14 +16,10 @@ precision); ``summary.json`` is derived from them and records the machine.
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
-from pipelines.numerics_probe import CAP_VARIABLES, CELLS, EPISODES, PINNED, ROOT, run_cell
+from pipelines.numerics_probe import CELLS, PINNED, run_cell
 from srmpc.numerics import cpu_model
 
 GOLDEN = json.loads((Path(__file__).parent / "data" / "golden_hashes.json").read_text())["cells"]
@@ -45,11 +41,4 @@ def test_golden_hashes(tmp_path):
 def test_evaluation_workers_inherit_the_pin(tmp_path):
     """Two worker processes (spawned interpreters) evaluate with the parent's pin: the same bytes as one process.
     Natively, a policy's actions in numpy follow the CPU's OpenBLAS core type (an AVX-512 CPU's: other bytes)."""
-    folder = tmp_path / "workers"
-    overrides = ["+experiment=table/ppo_lsi", "scenario=dense", f"evaluation.episodes={EPISODES}",
-                 "evaluation.workers=2", f"evaluation.output_dir={folder}", "tracking.enabled=false"]
-    env = {k: v for k, v in os.environ.items() if k not in CAP_VARIABLES} | PINNED
-    done = subprocess.run([sys.executable, "-m", "srmpc", *overrides], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert hashlib.md5((folder / "episodes.csv").read_bytes()).hexdigest()[:16] == GOLDEN["evaluate/ppo_lsi"]
+    assert run_cell("evaluate/ppo_lsi", tmp_path, PINNED, workers=2) == GOLDEN["evaluate/ppo_lsi"]
