@@ -4,4 +4,4 @@ Each module runs from the repository root as ``python -m pipelines.<module>`` (d
 reports share (the table's methods, the paper's values, a method's row) is :mod:`pipelines.reporting`.
 """
 
-import srmpc  # noqa: E402, F401  (first: applies SRMPC_NUMERICS before any numeric library loads)
+import srmpc  # noqa: F401  (first: applies SRMPC_NUMERICS before any numeric library loads)
