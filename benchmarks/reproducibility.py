@@ -9,6 +9,10 @@ on this machine, and, if it passed, adds or updates the entry of this CPU model 
 model, vendor, family/model/stepping, its flags, the commit, the tests that ran and passed, the date. An entry is
 keyed by (model name, flags): the same model name with other flags (another hypervisor's CPU mask) is another
 entry. A failing run records nothing and exits 1: see the test's docstring for what to do.
+
+``--golden-set``: after adding this CPU vendor's first golden set to tests/data/golden_hashes.json (from ``python -m
+pipelines.numerics_probe``), record under ``golden_sets`` that this CPU model made it, at this commit; then run the
+tests as above.
 """
 
 from __future__ import annotations
@@ -28,11 +32,34 @@ OUTPUT = ROOT / "results" / "benchmarks" / "reproducibility.json"
 TESTS = ("tests/test_golden_hashes.py", "tests/test_isa_caps.py")
 
 
+def this_commit() -> str:
+    """HEAD's hash, with ``+uncommitted`` when tracked files differ from it."""
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                                capture_output=True, text=True).stdout.strip())
+    return commit + ("+uncommitted" if dirty else "")
+
+
+def record_golden_set(out: Path) -> None:
+    """``golden_sets[vendor_id]``: the CPU model (family/model/stepping) and commit that made this vendor's set."""
+    info = cpuinfo()
+    record = json.loads(out.read_text()) if out.exists() else {}
+    record.setdefault("golden_sets", {})[info.get("vendor_id")] = {
+        "model": info.get("model name"),
+        "family_model_stepping": [info.get("cpu family"), info.get("model"), info.get("stepping")],
+        "commit": this_commit(), "date": datetime.date.today().isoformat()}
+    out.write_text(json.dumps(record, indent=2) + "\n")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--slow", action="store_true", help="also the slow caps (NUMBA_CPU_NAME, ...)")
+    parser.add_argument("--golden-set", action="store_true",
+                        help="record this CPU as the maker of its vendor's golden set (golden_sets), then test")
     parser.add_argument("--out", type=Path, default=OUTPUT)
     args = parser.parse_args()
+    if args.golden_set:
+        record_golden_set(args.out)
     command = [sys.executable, "-m", "pytest", *TESTS, "-p", "no:xdist", "-q", "-p", "no:cacheprovider"]
     if args.slow:
         command += ["-m", ""]
@@ -42,14 +69,11 @@ def main() -> None:
     if done.returncode != 0 or summary is None:
         sys.exit(f"{' and '.join(TESTS)} did not pass on this CPU: nothing recorded")
     info = cpuinfo()
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
-                                capture_output=True, text=True).stdout.strip())
     entry = {
         "model": info.get("model name"), "vendor": info.get("vendor_id"),
         "family_model_stepping": [info.get("cpu family"), info.get("model"), info.get("stepping")],
         "flags": sorted(info.get("flags", "").split()),
-        "commit": commit + ("+uncommitted" if dirty else ""), "tests_passed": int(summary.group(1)),
+        "commit": this_commit(), "tests_passed": int(summary.group(1)),
         "slow_caps": args.slow, "date": datetime.date.today().isoformat(),
     }
     record = json.loads(args.out.read_text()) if args.out.exists() else {}

@@ -5,15 +5,13 @@ natively and pinned, on this machine: ``python -m pipelines.numerics_probe --cap
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
 
 from pipelines.numerics_probe import CAP_CELLS, CAPS, NATIVE, NEEDS_AVX512, PINNED, run_cell
 from srmpc.numerics import cpu_flags
-
-GOLDEN = json.loads((Path(__file__).parent / "data" / "golden_hashes.json").read_text())["cells"]
+from tests.golden_sets import this_vendors_set
 
 DEFAULT_CAPS = ("mkl_avx2", "numpy_no_avx512")
 """Caps in the default suite: MKL's AVX2 kernels (another policy on an Intel Xeon with AVX-512, unpinned) and NumPy
@@ -23,10 +21,11 @@ without its AVX-512 loops. The others are slow (``NUMBA_CPU_NAME`` compiles ever
 def _check_cap(name: str, out: Path) -> None:
     if name in NEEDS_AVX512 and "avx512f" not in cpu_flags():
         pytest.skip(f"{name}: this CPU has no AVX-512")
+    golden = this_vendors_set()
     for cell in CAP_CELLS:
         digest = run_cell(cell, out, {**PINNED, **CAPS[name]})
-        assert digest == GOLDEN[cell], (f"pinned, cap {name} {CAPS[name]}: {cell} gives {digest}, not the golden "
-                                        f"{GOLDEN[cell]}: that cap's library path is not pinned")
+        assert digest == golden[cell], (f"pinned, cap {name} {CAPS[name]}: {cell} gives {digest}, not the golden "
+                                        f"{golden[cell]}: that cap's library path is not pinned")
 
 
 @pytest.mark.parametrize("name", DEFAULT_CAPS)
