@@ -10,15 +10,19 @@ model, vendor, family/model/stepping, its flags, the commit, the tests that ran 
 keyed by (model name, flags): the same model name with other flags (another hypervisor's CPU mask) is another
 entry. A failing run records nothing and exits 1: see the test's docstring for what to do.
 
-``--golden-set``: after adding this CPU vendor's first golden set to tests/data/golden_hashes.json (from ``python -m
-pipelines.numerics_probe``), record under ``golden_sets`` that this CPU model made it, at this commit; then run the
-tests as above.
+Each entry names the golden set it passed (``golden_set``: ``shared`` or the vendor's own, tests/golden_sets.py) and
+that set's digest (``set_digest``), so the entries at the current set can be told from older ones.
+
+``--golden-set``: after writing a golden set into tests/data/golden_hashes.json (from ``python -m
+pipelines.numerics_probe`` and ``python -m pipelines.numerics_fingerprint``), record under ``golden_sets`` that this
+CPU model made it, at this commit; then run the tests as above.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import hashlib
 import json
 import re
 import subprocess
@@ -29,7 +33,9 @@ from srmpc.numerics import cpuinfo
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUT = ROOT / "results" / "benchmarks" / "reproducibility.json"
-TESTS = ("tests/test_golden_hashes.py", "tests/test_isa_caps.py")
+TESTS = ("tests/test_golden_hashes.py", "tests/test_numerics_fingerprint.py", "tests/test_mkl_off_the_path.py",
+         "tests/test_isa_caps.py")
+GOLDEN = ROOT / "tests" / "data" / "golden_hashes.json"
 
 
 def this_commit() -> str:
@@ -40,12 +46,23 @@ def this_commit() -> str:
     return commit + ("+uncommitted" if dirty else "")
 
 
+def golden_set() -> tuple[str, str]:
+    """The golden set this CPU is compared with (``shared`` or its vendor_id) and that set's digest."""
+    golden, vendor = json.loads(GOLDEN.read_text()), cpuinfo().get("vendor_id")
+    name = vendor if vendor in golden["vendors"] else "shared"
+    chosen = golden["vendors"][name] if name != "shared" else {"cells": golden["cells"],
+                                                                 "fingerprint": golden["fingerprint"]}
+    return name, hashlib.md5(json.dumps(chosen, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def record_golden_set(out: Path) -> None:
-    """``golden_sets[vendor_id]``: the CPU model (family/model/stepping) and commit that made this vendor's set."""
+    """``golden_sets[name]``: the CPU model (vendor, family/model/stepping) and commit that made the set this CPU is
+    compared with."""
     info = cpuinfo()
     record = json.loads(out.read_text()) if out.exists() else {}
-    record.setdefault("golden_sets", {})[info.get("vendor_id")] = {
-        "model": info.get("model name"),
+    name, digest = golden_set()
+    record.setdefault("golden_sets", {})[name] = {
+        "model": info.get("model name"), "vendor": info.get("vendor_id"), "set_digest": digest,
         "family_model_stepping": [info.get("cpu family"), info.get("model"), info.get("stepping")],
         "commit": this_commit(), "date": datetime.date.today().isoformat()}
     out.write_text(json.dumps(record, indent=2) + "\n")
@@ -73,7 +90,8 @@ def main() -> None:
         "model": info.get("model name"), "vendor": info.get("vendor_id"),
         "family_model_stepping": [info.get("cpu family"), info.get("model"), info.get("stepping")],
         "flags": sorted(info.get("flags", "").split()),
-        "commit": this_commit(), "tests_passed": int(summary.group(1)),
+        "commit": this_commit(), "golden_set": golden_set()[0], "set_digest": golden_set()[1],
+        "tests_passed": int(summary.group(1)),
         "slow_caps": args.slow, "date": datetime.date.today().isoformat(),
     }
     record = json.loads(args.out.read_text()) if args.out.exists() else {}

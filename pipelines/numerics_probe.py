@@ -95,25 +95,58 @@ PINNED = {"SRMPC_NUMERICS": "pinned"}
 NATIVE = {"SRMPC_NUMERICS": "native"}
 
 
-def run_cell(cell: str, out: Path, environment: dict[str, str], extra: tuple[str, ...] = (), workers: int = 1) -> str:
+def run_cell(cell: str, out: Path, environment: dict[str, str], extra: tuple[str, ...] = (), workers: int = 1,
+             iterations: int = ITERATIONS, count_ops: bool = False) -> str:
     """Run ``cell`` through ``python -m srmpc`` into ``out`` with ``environment`` added (and the ``extra``
-    overrides; an evaluation in ``workers`` processes); its bytes' MD5 (16 digits)."""
+    overrides; an evaluation in ``workers`` processes, a training for ``iterations``); its bytes' MD5 (16 digits).
+    The run's stdout and stderr are kept in ``<folder>.log``; with ``count_ops`` it runs under :func:`count_aten_ops`,
+    whose counts go to ``<folder>.ops.json``."""
     env = {k: v for k, v in os.environ.items() if k not in CAP_VARIABLES and k != "SRMPC_PARENT_RUN_ID"}
     env.update(environment)
     folder = out / cell.replace("/", "_")
     if cell in TRAININGS:
-        overrides = [*TRAININGS[cell], f"agent.total_frames={ITERATIONS * FRAMES_PER_ITERATION}",
+        overrides = [*TRAININGS[cell], f"agent.total_frames={iterations * FRAMES_PER_ITERATION}",
                      f"agent.output_dir={folder}"]
         result_file = folder / "policy.pt"
     else:
         overrides = [f"+experiment={EVALUATIONS[cell]}", "scenario=dense", f"evaluation.episodes={EPISODES}",
                      f"evaluation.workers={workers}", f"evaluation.output_dir={folder}"]
         result_file = folder / "episodes.csv"
-    command = [sys.executable, "-m", "srmpc", *overrides, *extra, "tracking.enabled=false"]
+    entry = ["-m", "pipelines.numerics_probe", "--count-ops", str(folder) + ".ops.json", "--"] if count_ops else \
+        ["-m", "srmpc"]
+    command = [sys.executable, *entry, *overrides, *extra, "tracking.enabled=false"]
     done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    Path(str(folder) + ".log").write_text(done.stdout + done.stderr)
     if done.returncode != 0:
         raise RuntimeError(f"{cell} {environment}: exit {done.returncode}: {done.stderr.strip()[-1500:]}")
     return hashlib.md5(result_file.read_bytes()).hexdigest()[:16]
+
+
+def count_aten_ops(overrides: list[str], out: Path) -> None:
+    """Run ``python -m srmpc overrides`` in this process under a ``TorchDispatchMode`` that counts every aten op it
+    calls (forward and backward, below autograd), and write the counts to ``out`` (JSON: op name -> calls)."""
+    import runpy
+    from collections import Counter
+
+    import srmpc  # noqa: F401  (the pin first: it may start this process again)
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    counts: Counter[str] = Counter()
+
+    class CountOps(TorchDispatchMode):
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            counts[func._schema.name.split("::")[-1]] += 1
+            return func(*args, **(kwargs or {}))
+
+    sys.argv = ["srmpc", *overrides]
+    try:
+        with CountOps():
+            runpy.run_module("srmpc", run_name="__main__")
+    except SystemExit as exit_:
+        if exit_.code not in (None, 0):
+            raise
+    out.write_text(json.dumps(dict(sorted(counts.items())), indent=0) + "\n")
 
 
 def cap_matrix(folder: Path) -> dict:
@@ -140,7 +173,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--caps", action="store_true", help="the native and pinned cap matrix, written to --out")
     parser.add_argument("--out", type=Path, default=OUTPUT)
+    parser.add_argument("--count-ops", type=Path, metavar="JSON",
+                        help="run `python -m srmpc OVERRIDES` (after --) counting its aten ops into JSON")
+    parser.add_argument("overrides", nargs="*", help="with --count-ops: the run's overrides")
     args = parser.parse_args()
+    if args.count_ops:
+        count_aten_ops(args.overrides, args.count_ops)
+        return
     with tempfile.TemporaryDirectory() as folder:
         if not args.caps:
             for cell in CELLS:

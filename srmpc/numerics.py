@@ -9,28 +9,34 @@ its widest vector unit or its cache sizes:
 =========================  ==========================  ==================================================
 library                    variable = pinned value     what it fixes
 =========================  ==========================  ==================================================
-MKL (torch's BLAS:         ``MKL_CBWR=COMPATIBLE``     sgemm's code branch: SSE2 without the approximate
-``nn.Linear``)                                         rcpps/rsqrtps, the one branch Intel documents as
-                                                       reproducible on non-Intel CPUs too (``AVX2`` is
-                                                       documented for Intel CPUs; on an AMD EPYC it gave
-                                                       bytes of its own)
-ATen (torch's own kernels) ``ATEN_CPU_CAPABILITY=avx2`` vectorized reductions and math (tanh, exp, sum):
-                                                       an AVX-512 CPU would take its 16-lane kernels
+MKL (torch's BLAS, LAPACK  none: off the path          torch's ``mm``/``addmm``/``bmm``/``addmv``/``dot``,
+and vector math)                                       ``linalg_qr`` and the VML functions (``exp``,
+                                                       ``log``, ``tanh``, ``sqrt``, ``erf``, ...) run in
+                                                       NumPy instead (:mod:`srmpc.pinned_kernels`). MKL is
+                                                       not vendor-neutral: even its ``COMPATIBLE`` branch
+                                                       (``MKL_CBWR``) trained other bytes on an Intel Xeon
+                                                       than on an AMD EPYC
+ATen (torch's own kernels) ``ATEN_CPU_CAPABILITY=avx2`` vectorized reductions and math (sigmoid, sum,
+                                                       softplus): an AVX-512 CPU would take its 16-lane
+                                                       kernels
 oneDNN                     ``ONEDNN_MAX_CPU_ISA=AVX2`` oneDNN's JIT kernels (not on our float32 paths
                                                        today; pinned so that none appears unnoticed)
 NumPy's SIMD dispatch      ``NPY_ENABLE_CPU_FEATURES`` only the AVX2 level (``X86_V3``) of NumPy's
-                           ``=X86_V3``                 dispatched loops (``np.tanh``), not its AVX-512 ones
-                                                       (no effect measured on our paths; pinned so that
-                                                       none appears unnoticed)
+                           ``=X86_V3``                 dispatched loops (``np.tanh``, ``np.exp``), not its
+                                                       AVX-512 ones
 OpenBLAS (NumPy, SciPy)    ``OPENBLAS_CORETYPE=        the Haswell (AVX2) kernels, not SkylakeX's
                            Haswell``
+OpenBLAS's threads         ``OPENBLAS_NUM_THREADS=1``  one thread, so that no reduction is split by the
+                                                       machine's core count (2 threads trained other bytes)
 =========================  ==========================  ==================================================
 
 Measured on an AMD EPYC with AVX-512 (``python -m pipelines.numerics_probe --caps``,
 results/benchmarks/isa_caps.json): a policy's actions in numpy (``sim.mlp.MlpPolicy``'s matrix products)
 gave other bytes with OpenBLAS's Haswell kernels than with its SkylakeX ones, so an AVX2 CPU evaluates the
 same policy differently; a training moved with ``MKL_CBWR=AVX2``, ``=COMPATIBLE`` and
-``ATEN_CPU_CAPABILITY=default``.
+``ATEN_CPU_CAPABILITY=default``. On an Intel Xeon, MKL's vector math changed bytes with
+``MKL_ENABLE_INSTRUCTIONS``, and no MKL setting gave the AMD EPYC's bytes (issue "Byte-identical on Intel and
+AMD"): hence MKL off the path rather than pinned.
 
 numba is not pinned: its code has no fast-math, so LLVM neither reassociates nor contracts, and a
 training and the evaluations of a policy and of SRMPC gave the same bytes with ``NUMBA_CPU_NAME=generic``
@@ -38,7 +44,9 @@ and ``=haswell`` (isa_caps.json); a pinned target would also cost a second compi
 glibc's libm picks its FMA variants on every CPU with AVX2.
 
 Each variable is read once, when its library loads, so the pin is applied when ``srmpc`` is first
-imported (:func:`pin_process`, from ``srmpc/__init__.py``), before it imports numpy. A process that
+imported (:func:`pin_process`, from ``srmpc/__init__.py``), before it imports numpy; the rerouted torch kernels
+are registered when torch is first imported (an import hook), so a process that never trains never loads torch
+for them. A process that
 loaded numpy, torch, scipy or numba before importing ``srmpc`` (a benchmark script) is started again,
 once, with the same command line and the pinned variables; children (evaluation workers, SLURM jobs)
 inherit them. A variable the pin sets replaces the machine's own value, and ``NPY_DISABLE_CPU_FEATURES``
@@ -56,6 +64,8 @@ the default. Each run records :func:`environment_record` in its ``summary.json``
 
 from __future__ import annotations
 
+import importlib.abc
+import importlib.util
 import json
 import os
 import platform
@@ -70,11 +80,11 @@ DEFAULT_MODE = NATIVE
 """The mode when ``SRMPC_NUMERICS`` is unset: ``native`` until the regeneration flips it."""
 
 PINNED_VARIABLES = {
-    "MKL_CBWR": "COMPATIBLE",
     "ATEN_CPU_CAPABILITY": "avx2",
     "ONEDNN_MAX_CPU_ISA": "AVX2",
     "NPY_ENABLE_CPU_FEATURES": "X86_V3",
     "OPENBLAS_CORETYPE": "Haswell",
+    "OPENBLAS_NUM_THREADS": "1",
 }
 """The pin: each library's variable and its value (read when the library loads)."""
 
@@ -155,9 +165,18 @@ def is_pinned(environ: dict[str, str] | None = None) -> bool:
 
 def pin_process() -> None:
     """Apply the requested mode to this process: with ``pinned``, set :data:`PINNED_VARIABLES` (and start
-    the process again if a numeric library is already loaded). Raises NumericsError in one line."""
-    if requested_mode() == NATIVE or is_pinned():
+    the process again if a numeric library is already loaded), and route torch's MKL kernels to
+    :mod:`srmpc.pinned_kernels` when torch loads. Raises NumericsError in one line."""
+    if requested_mode() == NATIVE:
         return
+    if not is_pinned():
+        _set_pinned_variables()
+    _route_torch_kernels()
+
+
+def _set_pinned_variables() -> None:
+    """Set :data:`PINNED_VARIABLES` (recording the machine's own values), and start again if a numeric library is
+    loaded."""
     missing = [flag for flag in REQUIRED_CPU_FLAGS if flag not in cpu_flags()]
     if platform.machine() not in ("x86_64", "AMD64") or missing:
         raise NumericsError(f"{MODE_VARIABLE}={PINNED}: needs an x86-64 CPU with {', '.join(REQUIRED_CPU_FLAGS)}; "
@@ -170,6 +189,39 @@ def pin_process() -> None:
     loaded = [name for name in NUMERIC_MODULES if name in sys.modules]
     if loaded:
         _restart(loaded)
+
+
+class _RouteWhenTorchLoads(importlib.abc.MetaPathFinder):
+    """An import hook: once torch's module has run, register the pinned kernels (:func:`srmpc.pinned_kernels.route`)
+    before anything uses torch."""
+
+    def find_spec(self, fullname, path, target=None):
+        if fullname != "torch":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec("torch")
+        if spec is None or spec.loader is None:
+            return spec
+        load = spec.loader.exec_module
+
+        def exec_module(module):
+            load(module)
+            from srmpc import pinned_kernels
+
+            pinned_kernels.route()
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+def _route_torch_kernels() -> None:
+    """Route torch's MKL kernels now if torch is loaded, else when it loads (once per process)."""
+    if "torch" in sys.modules:
+        from srmpc import pinned_kernels
+
+        pinned_kernels.route()
+    elif not any(isinstance(finder, _RouteWhenTorchLoads) for finder in sys.meta_path):
+        sys.meta_path.insert(0, _RouteWhenTorchLoads())
 
 
 def _restart(loaded: list[str]) -> None:
@@ -207,18 +259,24 @@ def environment_record() -> dict:
     """What a run records about its numeric environment (``summary.json``'s :data:`SUMMARY_KEY`).
 
     ``numerics``: the mode; ``pinned``: the pinned variables as this process saw them (empty when native);
-    ``replaced``: the machine's own values the pin replaced; ``cpu``: :func:`cpu_summary`; ``threads``: torch's
-    and numba's in this process; ``libraries``: :func:`library_versions`."""
+    ``replaced``: the machine's own values the pin replaced; ``kernels``: where torch's MKL ops ran (``numpy``
+    when pinned and routed, ``mkl`` when torch is loaded natively, absent without torch); ``cpu``:
+    :func:`cpu_summary`; ``threads``: torch's and numba's in this process; ``libraries``: :func:`library_versions`."""
     mode = requested_mode()
     threads = {}
     if "torch" in sys.modules:
         threads["torch"] = sys.modules["torch"].get_num_threads()
     if "numba" in sys.modules:
         threads["numba"] = sys.modules["numba"].get_num_threads()
+    kernels = {}
+    if "torch" in sys.modules:
+        routed = "srmpc.pinned_kernels" in sys.modules and sys.modules["srmpc.pinned_kernels"].is_routed()
+        kernels["kernels"] = "numpy" if routed else "mkl"
     return {
         "numerics": mode,
         "pinned": {name: os.environ.get(name) for name in PINNED_VARIABLES} if mode == PINNED else {},
         "replaced": json.loads(os.environ.get(REPLACED_VARIABLE, "{}")) if mode == PINNED else {},
+        **kernels,
         "cpu": cpu_summary(),
         "threads": threads,
         "libraries": library_versions(),

@@ -13,15 +13,16 @@ from pipelines.numerics_probe import CAP_CELLS, CAPS, NATIVE, NEEDS_AVX512, PINN
 from srmpc.numerics import cpu_flags
 from tests.golden_sets import this_vendors_set
 
-DEFAULT_CAPS = ("mkl_avx2", "numpy_no_avx512")
-"""Caps in the default suite: MKL's AVX2 kernels (another policy on an Intel Xeon with AVX-512, unpinned) and NumPy
-without its AVX-512 loops. The others are slow (``NUMBA_CPU_NAME`` compiles every kernel again): ``make test-slow``."""
+DEFAULT_CAPS = ("numpy_no_avx512",)
+"""Caps in the default suite: NumPy without its AVX-512 loops (NumPy now computes a pinned training's GEMMs and
+vector math). MKL's settings, which the pin takes off the path: tests/test_mkl_off_the_path.py. The others are slow
+(``NUMBA_CPU_NAME`` compiles every kernel again): ``make test-slow``."""
 
 
 def _check_cap(name: str, out: Path) -> None:
     if name in NEEDS_AVX512 and "avx512f" not in cpu_flags():
         pytest.skip(f"{name}: this CPU has no AVX-512")
-    golden = this_vendors_set()
+    golden = this_vendors_set()["cells"]
     for cell in CAP_CELLS:
         digest = run_cell(cell, out, {**PINNED, **CAPS[name]})
         assert digest == golden[cell], (f"pinned, cap {name} {CAPS[name]}: {cell} gives {digest}, not the golden "
