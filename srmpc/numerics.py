@@ -52,9 +52,12 @@ once, with the same command line and the pinned variables; children (evaluation 
 inherit them. A variable the pin sets replaces the machine's own value, and ``NPY_DISABLE_CPU_FEATURES``
 is removed (NumPy refuses both it and ``NPY_ENABLE_CPU_FEATURES``); both are recorded under ``replaced``.
 
-What still depends on the machine: the thread count. ATen splits a parallel reduction by the number
-of threads, so a training is reproducible at a given ``agent.num_threads`` (1 by default; part of
-the run's config), not across thread counts.
+The thread count: natively, PPO-L-SI trained on 1 and 2 threads gives other bytes (MKL's kernels follow the thread
+count). Pinned, it gives the same bytes (``tests/test_golden_hashes.py``, 3 iterations): OpenBLAS runs on one
+thread, and no ATen reduction on a training's path is split by thread (ATen splits a full reduction only above its
+grain size, 32768 elements, and then by the thread count). A new reduction over more elements (a loss averaged over
+a whole batch of 32768 frames, say) would make a training's bytes depend on ``agent.num_threads`` again, and that
+test would fail.
 
 ``SRMPC_NUMERICS``: ``native`` (the libraries' own choices; today's default, under which the committed
 results were made) or ``pinned``. The regeneration (issue "The study regenerated") makes ``pinned``

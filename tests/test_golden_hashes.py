@@ -64,3 +64,11 @@ def test_evaluation_workers_inherit_the_pin(tmp_path):
     """Two worker processes (spawned interpreters) evaluate with the parent's pin: the same bytes as one process.
     Natively, a policy's actions in numpy follow the CPU's OpenBLAS core type (an AVX-512 CPU's: other bytes)."""
     assert run_cell("evaluate/ppo_lsi", tmp_path, PINNED, workers=2) == this_vendors_set()["cells"]["evaluate/ppo_lsi"]
+
+
+def test_training_bytes_do_not_depend_on_the_thread_count(tmp_path):
+    """Pinned, PPO-L-SI trained on 2 torch threads gives the golden (1-thread) bytes (natively it does not: MKL's
+    kernels follow the thread count): OpenBLAS runs on one thread, and no ATen reduction on a training's path is
+    split by thread."""
+    assert run_cell("train/ppo_lsi", tmp_path, PINNED, ("agent.num_threads=2",)) == \
+        this_vendors_set()["cells"]["train/ppo_lsi"]

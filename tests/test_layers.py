@@ -2,6 +2,7 @@
 
 Floors, from the ground up, in the order data flows through them (docs/layout.md):
 
+-2. ``pinned_kernels``: torch's MKL ops rerouted to NumPy, which ``numerics`` registers under the pin
 -1. ``numerics``: the numeric environment, which the package root applies before it imports anything else
 0. ground: ``errors``, ``value_checks``, ``confidence_intervals``, ``metrics``, ``output_lock``, the package root
 1. ``scenario``: the highway scenario (parameters, reward, safety index, observation, highway-env env)
@@ -41,7 +42,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "srmpc"
 
 FLOOR = {
     "__init__": 0, "errors": 0, "value_checks": 0, "confidence_intervals": 0, "metrics": 0, "output_lock": 0,
-    "numerics": -1,
+    "numerics": -1, "pinned_kernels": -2,
     "scenario": 1,
     "sim": 2,
     "agents": 3, "mpc": 3,
