@@ -61,7 +61,9 @@ def record_golden_set(out: Path) -> None:
     info = cpuinfo()
     record = json.loads(out.read_text()) if out.exists() else {}
     name, digest = golden_set()
-    record.setdefault("golden_sets", {})[name] = {
+    current = {"shared", *json.loads(GOLDEN.read_text())["vendors"]}
+    record["golden_sets"] = {key: entry for key, entry in record.get("golden_sets", {}).items() if key in current}
+    record["golden_sets"][name] = {
         "model": info.get("model name"), "vendor": info.get("vendor_id"), "set_digest": digest,
         "family_model_stepping": [info.get("cpu family"), info.get("model"), info.get("stepping")],
         "commit": this_commit(), "date": datetime.date.today().isoformat()}
