@@ -181,6 +181,7 @@ def recompute(cell: Cell, committed: list[bytes], scratch: Path, number: int, po
         environment = single_threaded(environment) if cell.kind == "evaluation" else training_environment(environment)
         returncode, output = run_command(command, environment)
     entry = {"stage": cell.stage, "kind": cell.kind, "committed": cell.committed, "rows": cell.rows,
+             **({"controller": cell.controller, "simulator": cell.simulator} if cell.kind == "evaluation" else {}),
              "wall_s": round(time.perf_counter() - started, 3),
              "command": " ".join(["python", *command[1:-1]])}
     if cell.note:
@@ -276,6 +277,7 @@ def run_check(args: argparse.Namespace) -> dict:
     """Recompute the selected cells and return the report (what :func:`main` prints and writes)."""
     root = args.root.resolve()
     mode = requested_mode()
+    code = git_commit(ROOT)  # the code that runs, before anything runs
     stages = read_lock(root)
     cells = select_cells(root, stages, args.stages)
     committed = set_rows(root, cells, args.episodes, args.iterations)
@@ -311,7 +313,7 @@ def run_check(args: argparse.Namespace) -> dict:
         return sum(s["kind"] == kind and s["result"] == result for s in per_stage.values())
 
     return {
-        "program": f"python -m pipelines.{PROGRAM}", **git_commit(ROOT), "root": str(root),
+        "program": f"python -m pipelines.{PROGRAM}", **code, "root": str(root),
         "numerics": mode, "cpu": cpu_summary(),
         "episodes": args.episodes, "iterations": args.iterations, "workers": args.workers,
         "stages_patterns": args.stages,
@@ -328,12 +330,24 @@ def run_check(args: argparse.Namespace) -> dict:
         "largest_relative_difference": {kind: max((e["max_relative_difference"] or 0.0 for e in cell_entries
                                                    if e["kind"] == kind and e["result"] == "differs"), default=None)
                                         for kind in ("evaluation", "training")},
+        "evaluations_by_controller": tally(cell_entries, "controller"),
+        "evaluations_by_simulator": tally(cell_entries, "simulator"),
         "first_differing_stage": bad[0] if bad else None,
         "first_differing_training": differing_trainings[0] if differing_trainings else None,
         "passed": not bad and not failed_trainings,
         "stages": per_stage,
         "cells": cell_entries,
     }
+
+
+def tally(entries: list[dict], key: str) -> dict[str, dict[str, int]]:
+    """Evaluation cells' results counted per value of ``key`` (their controller, their simulator)."""
+    counts: dict[str, dict[str, int]] = {}
+    for entry in entries:
+        if entry["kind"] == "evaluation":
+            group = counts.setdefault(entry[key] or "?", {"equal": 0, "differs": 0, "failed": 0})
+            group[entry["result"]] += 1
+    return dict(sorted(counts.items()))
 
 
 def summary_lines(report: dict) -> list[str]:

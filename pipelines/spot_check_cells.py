@@ -59,6 +59,9 @@ class Cell:
     rows: int = 0
     frames_per_batch: int = 0
     note: str = ""
+    controller: str = ""
+    """An evaluation's controller and simulator, from the lock's params (what it composed to)."""
+    simulator: str = ""
 
     def overrides(self, output_dir: Path) -> list[str]:
         """``python -m srmpc``'s overrides that recompute the cell's first :attr:`rows` rows into ``output_dir``:
@@ -105,7 +108,11 @@ def evaluation_cells(stages: dict) -> list[Cell]:
         if tuple(tokens[:3]) != SRMPC_COMMAND or len(episodes) != 1:
             raise BadInput(f"dvc.lock: stage {name}: cmd {stage.get('cmd')!r} is not one 'python -m srmpc ...' "
                            "evaluation; the spot check cannot recompute it")
-        cells.append(Cell("evaluation", name, name, episodes[0], tokens[3:]))
+        composed = next(iter((stage.get("params") or {}).values()), {})
+        composed = composed if isinstance(composed, dict) else {}
+        cells.append(Cell("evaluation", name, name, episodes[0], tokens[3:],
+                          controller=str((composed.get("controller") or {}).get("name", "")),
+                          simulator=str((composed.get("evaluation") or {}).get("simulator", ""))))
     return cells
 
 
@@ -166,8 +173,8 @@ class Comparison:
     columns: list[str] = field(default_factory=list)
     """Every column that differs in some compared row."""
     max_relative: float | None = None
-    """The largest |recomputed - committed| / max(|committed|, |recomputed|) over the differing numeric fields (a
-    difference in the last bits is about 1e-15; a different episode far more)."""
+    """The largest |recomputed - committed| / max(|committed|, |recomputed|) over the differing floating-point
+    fields (a difference in the last bits is about 1e-15; a different episode far more); counts are not scaled."""
 
 
 def _fields(line: bytes) -> list[str]:
@@ -194,6 +201,8 @@ def _extent(header: list[str], committed: list[list[str]], recomputed: list[list
                 continue
             if name not in columns:
                 columns.append(name)
+            if not any(mark in a + b for mark in ".eE"):  # a count (steps_solved, n_steps): listed, not scaled
+                continue
             try:
                 x, y = float(a), float(b)
             except ValueError:
