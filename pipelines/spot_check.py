@@ -60,7 +60,7 @@ from srmpc.numerics import NumericsError, cpu_summary, requested_mode
 ROOT = Path(__file__).resolve().parents[1]
 PROGRAM = "spot_check"
 DEFAULT_EPISODES = 3
-"""Episodes recomputed per evaluation: the whole check (116 evaluations, 21 trainings) then takes under 10 minutes on
+"""Episodes recomputed per evaluation: the whole check (116 evaluations, 21 training runs) then took under 10 minutes on
 2 cores (results/benchmarks/spot_check.json, ``wall_s``)."""
 DEFAULT_ITERATIONS = 2
 """Training iterations recomputed per training run."""
