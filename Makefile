@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export PATH := $(abspath $(BIN)):$(PATH)
 
-.PHONY: install lock reproduce videos test test-slow lint ui bench clean
+.PHONY: install lock reproduce videos check test test-slow lint ui bench clean
 
 ## Exactly the versions of requirements.lock, every file checked against its hash, then srmpc itself, resolving
 ## nothing (`--no-deps`; `--no-build-isolation`: built with the locked setuptools). `--retries 0`: an index that
@@ -48,6 +48,11 @@ reproduce: install
 ## The episode videos alone (results/videos/, DVC stage `videos`).
 videos: install
 	dvc repro --single-item videos
+
+## Does this repository reproduce on this machine? The first episodes of every committed evaluation and the first
+## iterations of every training, recomputed and compared with the committed rows (pipelines/spot_check.py; minutes).
+check: install
+	python -m pipelines.spot_check
 
 ## The default test suite (slow tests excluded), on every core (pytest-xdist, one test file per worker at a time),
 ## after numba's cache is filled once (srmpc/precompile.py), so that the workers do not each compile the same kernels.

@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import signal
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import hydra
@@ -38,7 +39,7 @@ from srmpc.errors import FileFault, JobFailed, describe_file_fault
 from srmpc.numerics import SUMMARY_KEY, environment_record, mlflow_tags
 from srmpc.output_folder import SUMMARY_NAME, atomic_write_text
 from srmpc.output_lock import OutputDirectoryBusy, OutputDirectoryUnwritable, exclusive_output_dir
-from srmpc.tracking import TrackingStoreUnusable, check_tracking_store, tracked_run
+from srmpc.tracking import TrackingStoreUnusable, check_tracking_store, run_name, tracked_run
 
 EXIT_CONFIG_ERROR = 2
 EXIT_RUN_ERROR = 1
@@ -74,21 +75,37 @@ def _shown_path(path: Path) -> str:
     return str(resolved.relative_to(Path.cwd())) if resolved.is_relative_to(Path.cwd()) else str(resolved)
 
 
-def run(cfg: DictConfig, output_dir: Path) -> dict:
+def tracked_run_name(config: Config, overrides: Sequence[str] = ()) -> str:
+    """The run's MLflow name: its identity (``<experiment>_<traffic>``, its folder's name, or its stage, method and
+    traffic), then the command-line ``overrides`` beyond it (srmpc.tracking.run_name)."""
+    if config.stage is Stage.train_sb3:
+        base, said = f"train-{config.agent.name}-sb3-{config.scenario.traffic}", ("agent", "agent.name")
+    elif config.stage is Stage.train:
+        base = f"train-{config.agent.name}-{config.agent.task.value}-{config.scenario.traffic}"
+        said = ("agent", "agent.name", "agent.task")
+    elif config.experiment:
+        base, said = f"{config.experiment}_{config.scenario.traffic}", ()
+    else:
+        base = f"{config.stage.value}-{controller_label(config.controller)}-{config.scenario.traffic}"
+        said = ("controller",)
+    return run_name(base, overrides, said)
+
+
+def logged_params(cfg: DictConfig) -> dict:
+    """The composed config as its MLflow params' tree: resolved, every Enum spelled as the config files spell it
+    (``controller.name: ltv_mpc``, not ``ControllerName.ltv_mpc``), so the params are the config's YAML values."""
+    return OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
+
+
+def run(cfg: DictConfig, output_dir: Path, overrides: Sequence[str] = ()) -> dict:
     """Run the composed config's stage; returns the stage's summary. The stage's output directory is
     this process's alone for the run (srmpc.output_lock): a second run into it is refused before the
-    MLflow run starts."""
+    MLflow run starts. ``overrides``: the command line's (Hydra's task overrides), which the run's name carries
+    beyond its experiment (:func:`tracked_run_name`)."""
     config: Config = to_objects(cfg)
     config_yaml = recorded_yaml(cfg)
     tracking = config.tracking
-    if config.stage is Stage.train_sb3:
-        run_name = f"train-{config.agent.name}-sb3-{config.scenario.traffic}"
-    elif config.stage is Stage.train:
-        run_name = f"train-{config.agent.name}-{config.agent.task.value}-{config.scenario.traffic}"
-    elif config.experiment:
-        run_name = f"{config.experiment}_{config.scenario.traffic}"  # its identity, as its folder's name
-    else:
-        run_name = f"{config.stage.value}-{controller_label(config.controller)}-{config.scenario.traffic}"
+    run_name = tracked_run_name(config, overrides)
     from srmpc.fanout import settings_from_environment
     from srmpc.sweep import in_multirun, prepare_tracking_store
 
@@ -102,7 +119,7 @@ def run(cfg: DictConfig, output_dir: Path) -> dict:
     stage_dir, stage_dir_key = stage_output_dir(config, output_dir)
     with exclusive_output_dir(stage_dir, stage_dir_key), tracked_run(
         tracking.enabled, tracking.uri, tracking.artifact_location, tracking.experiment_name, run_name,
-        OmegaConf.to_container(cfg, resolve=True), config_yaml,
+        logged_params(cfg), config_yaml,
     ) as active_run:
         active_run.set_tags({"output_dir": _shown_path(stage_dir)})  # pipelines/mlflow_import.py keys runs by it
         active_run.set_tags(mlflow_tags(environment_record()))
@@ -143,7 +160,7 @@ def hydra_main(cfg: DictConfig) -> None:
     signal.signal(signal.SIGTERM, _raise_on_sigterm)
     try:
         with_experiment_name(cfg, HydraConfig.get().runtime.choices.get("experiment"))
-        summary = run(cfg, Path(HydraConfig.get().runtime.output_dir))
+        summary = run(cfg, Path(HydraConfig.get().runtime.output_dir), HydraConfig.get().overrides.task)
     except (ConfigError, OutputDirectoryUnwritable) as error:
         _fail(str(error))
     except (OutputDirectoryBusy, TrackingStoreUnusable) as error:  # refused before anything is written

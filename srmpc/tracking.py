@@ -22,6 +22,7 @@ import socket
 import sys
 import time
 from collections.abc import Iterable, Iterator, Mapping
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -167,16 +168,60 @@ def runs_table_url(base: str, experiment_id: str, view: str = RESULTS_VIEW) -> s
             f"?viewStateShareKey={view}&workflowType=machine_learning")
 
 
+def config_spelling(value: Any) -> Any:
+    """``value`` as the config files spell it: an Enum of the structured config by its member's name
+    (``ControllerName.ltv_mpc`` -> ``ltv_mpc``, what ``conf/`` writes and ``OmegaConf.to_yaml`` prints),
+    inside lists and tuples too; anything else unchanged."""
+    if isinstance(value, Enum):
+        return value.name
+    if isinstance(value, list | tuple):
+        return [config_spelling(item) for item in value]
+    return value
+
+
 def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
-    """{"a": {"b": 1}} -> {"a.b": "1"}: MLflow params from a nested config."""
+    """{"a": {"b": 1}} -> {"a.b": "1"}: MLflow params from a nested config, each value spelled as the config
+    files spell it (:func:`config_spelling`), so that a filter such as ``params.controller.name = 'ltv_mpc'``
+    finds the run."""
     flat: dict[str, str] = {}
     for key, value in tree.items():
         name = f"{prefix}{key}"
         if isinstance(value, Mapping):
             flat.update(flatten(value, f"{name}."))
         else:
-            flat[name] = str(value)
+            flat[name] = str(config_spelling(value))
     return flat
+
+
+NAMED_BY_BASE = ("experiment", "scenario", "stage")
+"""Override keys (``+``/``~`` prefixes dropped) that a run's base name already says: its experiment, its
+traffic level (the ``scenario`` group's option) and its stage; :func:`run_name` leaves them out."""
+NOT_NAMED = ("hydra", "tracking", "evaluation.output_dir", "evaluation.workers", "agent.output_dir")
+"""Override keys, and the keys below them, that change where or how a run is made, not its results (Hydra's own
+settings, MLflow, the output folder, the worker count): :func:`run_name` leaves them out."""
+
+
+def named_overrides(overrides: Iterable[str], also_named: Iterable[str] = ()) -> list[str]:
+    """The command-line ``overrides`` (``key=value``, Hydra's task overrides) that a run's name carries, in their
+    order: all but those of :data:`NAMED_BY_BASE`, ``also_named`` (more keys its base name says) and
+    :data:`NOT_NAMED`."""
+    said = (*NAMED_BY_BASE, *also_named)
+    kept = []
+    for override in overrides:
+        key = override.lstrip("+~").partition("=")[0]
+        if key in said or any(key == k or key.startswith(f"{k}.") for k in NOT_NAMED):
+            continue
+        kept.append(override)
+    return kept
+
+
+def run_name(base: str, overrides: Iterable[str], also_named: Iterable[str] = ()) -> str:
+    """A run's MLflow name: ``base`` (its identity: ``<experiment>_<traffic>``, or its stage, method and traffic),
+    then the overrides beyond it (:func:`named_overrides`), so that the runs of a sweep are told apart in the runs
+    list: ``python -m srmpc -m +experiment=smoke controller=srmpc,ltv_mpc`` names ``smoke_light controller=srmpc``
+    and ``smoke_light controller=ltv_mpc``. A DVC stage's run (``+experiment=<path> scenario=<traffic>``) is
+    named ``base`` alone, its folder's name."""
+    return " ".join([base, *named_overrides(overrides, also_named)])
 
 
 def _plain(value: Any) -> Any:

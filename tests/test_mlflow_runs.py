@@ -139,3 +139,100 @@ def test_buffered_metrics_of_a_failed_run_are_kept(store):
             raise SystemExit(143)  # SIGTERM's path
     mlflow_run, history = _history(uri, "episode/c")
     assert history == [(0, 0.0), (1, 1.0), (2, 2.0)] and mlflow_run.info.status == "FAILED"
+
+
+# --- what a run logs: its name carries the overrides beyond its experiment; its params are the config's YAML ---
+
+PARAM_CASES = [
+    ["+experiment=smoke", "controller=ltv_mpc"],
+    ["+experiment=table/ppo_sb3", "scenario=dense"],
+    ["+experiment=nmpc/rollout", "scenario=light"],
+    ["+experiment=crosscheck/highway_env_srmpc", "scenario=dense"],
+    ["+experiment=rss/srmpc_recommended_ppo_lsi_rss", "scenario=light"],
+    ["stage=train", "agent=ppo_lsi", "agent.seed=1"],
+    ["stage=train", "+experiment=training/ppo_lsi_rss", "agent.seed=2"],
+    ["stage=train_sb3", "agent=ppo", "agent.name=ppo_sb3"],
+    ["stage=train", "agent=ppo", "agent.task=toy"],
+]
+"""Evaluations (the published cells' kinds: planners, policies, the NMPC, highway-env, RSS) and trainings."""
+
+
+def _yaml_leaves(tree, prefix=""):
+    """{"a": {"b": 1}} -> {"a.b": "1"}, computed here from the YAML text alone (not srmpc.tracking.flatten)."""
+    leaves = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            leaves.update(_yaml_leaves(value, f"{prefix}{key}."))
+        else:
+            leaves[f"{prefix}{key}"] = str(value)
+    return leaves
+
+
+@pytest.mark.parametrize("overrides", PARAM_CASES, ids=" ".join)
+def test_every_logged_param_is_spelled_as_the_config_yaml(store, overrides):
+    """Each param the run logs equals the composed config's value as ``OmegaConf.to_yaml`` writes it (the config
+    files' spelling): ``controller.name = ltv_mpc``, never the enum repr ``ControllerName.ltv_mpc``."""
+    import re
+
+    import yaml
+    from omegaconf import OmegaConf
+
+    from srmpc.__main__ import logged_params, tracked_run_name
+    from srmpc.config.compose import compose_config, recorded_yaml, to_objects
+
+    uri, artifacts = store
+    cfg = compose_config([*overrides, "tracking.enabled=false"])
+    name = tracked_run_name(to_objects(cfg), overrides)
+    with tracked_run(True, uri, artifacts, "srmpc", name, logged_params(cfg), recorded_yaml(cfg)) as run:
+        run_id = run.run_id
+    logged = mlflow.MlflowClient(uri).get_run(run_id).data.params
+    expected = _yaml_leaves(yaml.safe_load(OmegaConf.to_yaml(cfg, resolve=True)))
+    enum_reprs = {k: v for k, v in logged.items() if re.fullmatch(r"[A-Z][A-Za-z]*\.\w+", v)}
+    assert not enum_reprs, f"params logged as enum reprs: {enum_reprs}"
+    assert logged == expected, {k: (logged.get(k), expected.get(k)) for k in set(logged) | set(expected)
+                                if logged.get(k) != expected.get(k)}
+
+
+@pytest.mark.parametrize(("overrides", "name"), [
+    (["+experiment=table/srmpc", "scenario=dense"], "table/srmpc_dense"),  # a DVC cell: its folder's name
+    (["+experiment=smoke", "controller=ltv_mpc"], "smoke_light controller=ltv_mpc"),
+    (["+experiment=smoke", "controller=ltv_mpc", "tracking.enabled=false", "evaluation.output_dir=/tmp/x",
+      "evaluation.workers=2"], "smoke_light controller=ltv_mpc"),  # where and how it runs: not its result
+    (["+experiment=table/ltv_mpc", "scenario=light", "planner=margin_1m", "evaluation.episodes=5"],
+     "table/ltv_mpc_light planner=margin_1m evaluation.episodes=5"),
+    (["controller=ltv_mpc", "planner=margin_4m"], "evaluate-ltv_mpc-light planner=margin_4m"),
+    (["stage=train", "agent=ppo_lsi", "agent.seed=1", "agent.output_dir=/tmp/t"],
+     "train-ppo_lsi-twin_highway-light agent.seed=1"),
+])
+def test_a_runs_name_carries_the_overrides_beyond_its_experiment(overrides, name):
+    from srmpc.__main__ import tracked_run_name
+    from srmpc.config.compose import compose_config, to_objects
+
+    assert tracked_run_name(to_objects(compose_config(overrides)), overrides) == name
+
+
+def test_a_sweeps_runs_are_told_apart_by_name_and_found_by_their_params(tmp_path):
+    """``python -m srmpc -m +experiment=smoke controller=srmpc,ltv_mpc``: two runs, named by the controller they
+    sweep, each found by the filter ``params.controller.name = '<name>'``."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {k: v for k, v in os.environ.items() if k != PARENT_RUN_ENV}
+    env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])  # this checkout's srmpc
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    result = subprocess.run(
+        [sys.executable, "-m", "srmpc", "-m", "+experiment=smoke", "controller=srmpc,ltv_mpc", f"tracking.uri={uri}",
+         f"tracking.artifact_location={tmp_path / 'mlruns'}"],
+        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    client = mlflow.MlflowClient(uri)
+    experiment = client.get_experiment_by_name("srmpc-smoke").experiment_id
+    runs = client.search_runs([experiment])
+    assert sorted(r.info.run_name for r in runs) == ["smoke_light controller=ltv_mpc", "smoke_light controller=srmpc"]
+    for controller in ("srmpc", "ltv_mpc"):
+        (found,) = client.search_runs([experiment], f"params.`controller.name` = '{controller}'")
+        assert found.info.run_name == f"smoke_light controller={controller}"
+        assert found.data.params["stage"] == "evaluate" and found.data.params["evaluation.simulator"] == "twin"
