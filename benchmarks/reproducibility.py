@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import hashlib
 import json
 import re
 import subprocess
@@ -32,10 +31,14 @@ from pathlib import Path
 from srmpc.numerics import cpuinfo
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # run as a script, this folder is first on the path: the repository's tests too
+    sys.path.insert(0, str(ROOT))
+
+from tests.golden_sets import SHARED, set_digest, set_name, this_vendors_set, vendor_sets  # noqa: E402
+
 OUTPUT = ROOT / "results" / "benchmarks" / "reproducibility.json"
 TESTS = ("tests/test_golden_hashes.py", "tests/test_numerics_fingerprint.py", "tests/test_mkl_off_the_path.py",
          "tests/test_isa_caps.py")
-GOLDEN = ROOT / "tests" / "data" / "golden_hashes.json"
 
 
 def this_commit() -> str:
@@ -48,11 +51,7 @@ def this_commit() -> str:
 
 def golden_set() -> tuple[str, str]:
     """The golden set this CPU is compared with (``shared`` or its vendor_id) and that set's digest."""
-    golden, vendor = json.loads(GOLDEN.read_text()), cpuinfo().get("vendor_id")
-    name = vendor if vendor in golden["vendors"] else "shared"
-    chosen = golden["vendors"][name] if name != "shared" else {"cells": golden["cells"],
-                                                                 "fingerprint": golden["fingerprint"]}
-    return name, hashlib.md5(json.dumps(chosen, sort_keys=True).encode()).hexdigest()[:16]
+    return set_name(), set_digest(this_vendors_set())
 
 
 def record_golden_set(out: Path) -> None:
@@ -61,7 +60,7 @@ def record_golden_set(out: Path) -> None:
     info = cpuinfo()
     record = json.loads(out.read_text()) if out.exists() else {}
     name, digest = golden_set()
-    current = {"shared", *json.loads(GOLDEN.read_text())["vendors"]}
+    current = {SHARED, *vendor_sets()}
     record["golden_sets"] = {key: entry for key, entry in record.get("golden_sets", {}).items() if key in current}
     record["golden_sets"][name] = {
         "model": info.get("model name"), "vendor": info.get("vendor_id"), "set_digest": digest,

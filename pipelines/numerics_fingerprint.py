@@ -120,7 +120,6 @@ def adam() -> str:
 
 
 def gae() -> str:
-    import torch
     from torchrl.objectives.value.functional import generalized_advantage_estimate
 
     shape = (64, 32, 1)
@@ -157,7 +156,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
 
 def fingerprint() -> dict[str, str]:
     """Every block's MD5 in this process (one torch thread, as a training's default)."""
-    import srmpc  # noqa: F401  (the pin first: it may start this process again)
+    import srmpc  # noqa: F401, I001  (the pin first: it may start this process again)
     import torch
 
     torch.set_num_threads(1)

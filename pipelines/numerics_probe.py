@@ -126,7 +126,7 @@ def run_cell(cell: str, out: Path, environment: dict[str, str], extra: tuple[str
 def count_aten_ops(overrides: list[str], out: Path) -> None:
     """Run ``python -m srmpc overrides`` in this process under a ``TorchDispatchMode`` that counts every aten op it
     calls (forward and backward, below autograd), and write the counts to ``out`` (JSON: op name -> calls)."""
-    import runpy
+    import runpy  # noqa: I001  (srmpc before torch: the pin first)
     from collections import Counter
 
     import srmpc  # noqa: F401  (the pin first: it may start this process again)

@@ -94,10 +94,10 @@ def test_unary_out_in_place_and_integer_forms(name, routed):
 def test_foreach_sqrt_as_adam_calls_it(routed):
     tensors = [_inputs("sqrt", (4, 3), seed=s) for s in range(3)]
     roots = torch._foreach_sqrt(tensors)
-    assert all(torch.equal(root, t.sqrt()) for root, t in zip(roots, tensors))
+    assert all(torch.equal(root, t.sqrt()) for root, t in zip(roots, tensors, strict=True))
     copies = [t.clone() for t in tensors]
     torch._foreach_sqrt_(copies)
-    assert all(torch.equal(c, r) for c, r in zip(copies, roots))
+    assert all(torch.equal(c, r) for c, r in zip(copies, roots, strict=True))
 
 
 def test_half_types_are_computed_in_float32(routed):
@@ -114,10 +114,11 @@ def test_complex_tensors_are_refused_in_one_line(routed):
         assert "\n" not in str(error.value) and "complex" in str(error.value)
 
 
-def _assert_product_close(pinned: torch.Tensor, native: torch.Tensor, bound: torch.Tensor, inner: int) -> None:
+def _assert_product_close(pinned: torch.Tensor, native: torch.Tensor, bound: torch.Tensor, inner: int,
+                          case: str) -> None:
     eps = torch.finfo(native.dtype).eps
-    assert pinned.dtype == native.dtype and pinned.shape == native.shape
-    assert torch.all((pinned - native).abs() <= 2 * inner * eps * bound + torch.finfo(native.dtype).tiny)
+    assert pinned.dtype == native.dtype and pinned.shape == native.shape, case
+    assert torch.all((pinned - native).abs() <= 2 * inner * eps * bound + torch.finfo(native.dtype).tiny), case
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
@@ -145,7 +146,7 @@ def test_matrix_products_within_the_dot_product_bound(dtype):
     }
     for name, (product, bound, inner) in cases.items():
         native, pinned = _native_then_routed(product)
-        _assert_product_close(pinned, native, bound, inner)
+        _assert_product_close(pinned, native, bound, inner, name)
 
 
 def test_matrix_products_run_in_numpy(routed):
@@ -186,7 +187,8 @@ def test_autograd_through_the_pinned_kernels():
         return loss.detach(), x.grad, layer.weight.grad, layer.bias.grad
 
     native, pinned = _native_then_routed(loss_and_grads)
-    for n, p in zip(native, pinned):  # sums of 64 to 16384 terms in another order: float32 rounding of that size
+    # sums of 64 to 16384 terms in another order: float32 rounding of that size
+    for n, p in zip(native, pinned, strict=True):
         torch.testing.assert_close(p, n, rtol=1e-4, atol=1e-4)
 
 
@@ -195,7 +197,7 @@ def test_qr_and_the_orthogonal_initialisation(mode):
     """Q and R as torch's (LAPACK's sign convention), batched; orthogonal_ gives an orthogonal matrix."""
     A = _inputs("", (2, 64, 30), torch.float32, 7)
     native, pinned = _native_then_routed(lambda m: torch.linalg.qr(m, mode=mode), A)
-    for n, p in zip(native, pinned):
+    for n, p in zip(native, pinned, strict=True):
         assert p.shape == n.shape and p.dtype == n.dtype
         torch.testing.assert_close(p, n, rtol=1e-4, atol=1e-5)
     q, r = torch.empty(0), torch.empty(0)
